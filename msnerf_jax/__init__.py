@@ -1,0 +1,15 @@
+"""msnerf-jax: multi-style neural radiance fields with AdaIN, in JAX/Flax."""
+
+__version__ = "0.1.0"
+
+
+def load_run(run_dir):
+  """Loads a saved run (config, latest params, step) without the CLI.
+
+  See `msnerf_jax.checkpoint.load_run`.
+  """
+  from msnerf_jax.checkpoint import load_run as _load_run
+  return _load_run(run_dir)
+
+
+__all__ = ["__version__", "load_run"]

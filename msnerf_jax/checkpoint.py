@@ -1,0 +1,167 @@
+"""Run folders: saved config, atomic orbax checkpoints with resume, and `load_run`."""
+
+import dataclasses
+import json
+import os
+from typing import Any, Dict, Optional
+
+import numpy as np
+import orbax.checkpoint as ocp
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.data.images import atomic_write_bytes
+from msnerf_jax.errors import UserError
+
+RUN_FILE = "run.json"
+CHECKPOINT_DIR = "checkpoints"
+
+
+def read_run_file(run_dir: str) -> Dict[str, Any]:
+  """The parsed run.json of a run folder ({"kind", "config", ...})."""
+  if not os.path.exists(run_dir):
+    raise UserError(f"{run_dir}: no such run folder")
+  if not os.path.isdir(run_dir):
+    raise UserError(f"{run_dir}: is a file, expected a run folder")
+  path = os.path.join(run_dir, RUN_FILE)
+  if not os.path.exists(path):
+    raise UserError(f"{path}: missing; {run_dir} is not a msnerf run folder")
+  try:
+    with open(path) as f:
+      run = json.load(f)
+  except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    raise UserError(f"{path}: malformed JSON ({e})") from None
+  if not isinstance(run, dict) or "kind" not in run or "config" not in run:
+    raise UserError(f"{path}: missing 'kind' or 'config'")
+  return run
+
+
+def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
+  """Creates a run folder or checks that an existing one was made with the same settings.
+
+  Args:
+    run_dir: the folder.
+    kind: "nerf", "adain", "multistyle".
+    run: JSON-able dict with at least "config"; saved as run.json together with `kind`.
+  Returns:
+    True when the folder already held this run (training resumes), False when new.
+  Raises:
+    UserError when the path is a file, or the folder holds a run of another kind or config
+    (its checkpoints are never touched then).
+  """
+  record = {"kind": kind, **run}
+  if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+    raise UserError(f"{run_dir}: is a file, expected a run folder")
+  path = os.path.join(run_dir, RUN_FILE)
+  if os.path.exists(path):
+    saved = read_run_file(run_dir)
+    if saved.get("kind") != kind:
+      raise UserError(f"{run_dir}: holds a {saved.get('kind')!r} run, not {kind!r}; "
+                      "choose another --out")
+    # Compare what defines the run; "steps" may grow to train longer.
+    mismatch = config_lib.diff(_defining(saved), _defining(record))
+    if mismatch:
+      raise UserError(f"{run_dir}: was made with another config ({mismatch}); "
+                      "use another --out, or the same options to resume")
+    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
+    return True
+  if os.path.isdir(run_dir) and os.listdir(run_dir):
+    if os.path.exists(os.path.join(run_dir, CHECKPOINT_DIR)):
+      raise UserError(f"{run_dir}: has checkpoints but no {RUN_FILE}; refusing to overwrite")
+  try:
+    os.makedirs(run_dir, exist_ok=True)
+    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
+  except PermissionError:
+    raise UserError(f"{run_dir}: not writable") from None
+  except OSError as e:
+    raise UserError(f"{run_dir}: cannot create run folder ({e.strerror})") from None
+  return False
+
+
+def _defining(record: Dict[str, Any]) -> Dict[str, Any]:
+  record = json.loads(json.dumps(record))  # deep copy, tuples -> lists
+  record.get("config", {}).pop("steps", None)
+  record.pop("summary", None)
+  return record
+
+
+class Checkpoints:
+  """Orbax checkpoints of one run: atomic (written to a temporary folder, then renamed).
+
+  A checkpoint is a dict pytree (params, optimizer state, step, PRNG key ...). A process
+  killed mid-save leaves only a temporary folder, which orbax ignores and removes, so the
+  latest *complete* checkpoint is what `restore` returns.
+  """
+
+  def __init__(self, run_dir: str, keep: int = 3):
+    self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_DIR))
+    options = ocp.CheckpointManagerOptions(
+        max_to_keep=keep, create=True, enable_async_checkpointing=False,
+        cleanup_tmp_directories=True)
+    self._manager = ocp.CheckpointManager(self.directory, options=options)
+
+  def latest_step(self) -> Optional[int]:
+    return self._manager.latest_step()
+
+  def save(self, step: int, tree: Any) -> None:
+    if step in self._manager.all_steps():
+      return
+    self._manager.save(step, args=ocp.args.StandardSave(tree), force=True)
+    self._manager.wait_until_finished()
+
+  def restore(self, template: Any = None, step: Optional[int] = None) -> Any:
+    """The checkpoint at `step` (default latest) shaped like `template` (or raw dicts)."""
+    step = self.latest_step() if step is None else step
+    if step is None:
+      raise UserError(f"{self.directory}: no checkpoint yet")
+    try:
+      if template is None:
+        return self._manager.restore(step)
+      return self._manager.restore(step, args=ocp.args.StandardRestore(template))
+    except (ValueError, KeyError, TypeError) as e:
+      raise UserError(f"{self.directory}/{step}: checkpoint does not match this config "
+                      f"({str(e).splitlines()[0][:200]})") from None
+
+  def close(self) -> None:
+    self._manager.close()
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+  """A saved run: its kind, config (frozen dataclass), params pytree and step."""
+  run_dir: str
+  kind: str
+  config: Any
+  params: Any
+  step: int
+  record: Dict[str, Any]
+
+
+def load_run(run_dir: str) -> Run:
+  """Loads a run folder: config from run.json and params of its latest checkpoint.
+
+  Returns:
+    `Run` with `.config`, `.params` (nested dict of numpy arrays) and `.step`.
+  """
+  record = read_run_file(run_dir)
+  kind = record["kind"]
+  config = config_lib.from_dict(config_lib.config_class(kind), record["config"],
+                                os.path.join(run_dir, RUN_FILE))
+  checkpoints = Checkpoints(run_dir)
+  try:
+    step = checkpoints.latest_step()
+    if step is None:
+      raise UserError(f"{run_dir}: no checkpoint yet (train first)")
+    restored = checkpoints.restore()
+  finally:
+    checkpoints.close()
+  params = _to_numpy(restored["params"])
+  return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
+             record=record)
+
+
+def _to_numpy(tree):
+  if isinstance(tree, dict):
+    return {k: _to_numpy(v) for k, v in tree.items()}
+  if isinstance(tree, (list, tuple)):
+    return type(tree)(_to_numpy(v) for v in tree)
+  return np.asarray(tree)

@@ -1,0 +1,131 @@
+"""Frozen configuration dataclasses, presets, and their JSON round trip."""
+
+import dataclasses
+from typing import Any, Dict, Optional, Type, TypeVar
+
+from msnerf_jax.errors import UserError
+
+T = TypeVar("T")
+
+
+@dataclasses.dataclass(frozen=True)
+class DataConfig:
+  """Which scene to load and how (saved with a run so eval/render reload the same views)."""
+  path: str = ""
+  format: str = "auto"  # "auto", "blender" or "llff".
+  downscale: int = 1  # Blender: divide 800x800 by this. LLFF: the images_{factor} folder to read.
+  llff_holdout: int = 8  # LLFF: every n-th image is held out for val/test.
+  llff_spherify: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class NerfConfig:
+  """Vanilla NeRF: architecture, sampling and optimisation (defaults = reference code, Blender)."""
+  # Architecture (the `trunk` a multi-style model later freezes).
+  net_depth: int = 8
+  net_width: int = 256
+  skip_layer: int = 4  # the encoded input is concatenated to the output of this layer.
+  pos_freqs: int = 10
+  dir_freqs: int = 4
+  # Sampling.
+  n_coarse: int = 64
+  n_fine: int = 128
+  lindisp: bool = False
+  perturb: bool = True
+  raw_noise_std: float = 0.0
+  # Optimisation.
+  batch_rays: int = 1024
+  steps: int = 200_000
+  lr_init: float = 5e-4
+  lr_final: float = 5e-5
+  lr_decay_steps: int = 250_000  # lr reaches lr_final after this many steps (exponential).
+  precrop_steps: int = 500  # Blender: sample only the central crop at first (avoids an empty scene).
+  precrop_frac: float = 0.5
+  # Bookkeeping.
+  seed: int = 0
+  checkpoint_every: int = 5000
+  keep_checkpoints: int = 3
+  render_chunk: int = 4096  # rays per jitted rendering call: bounds memory whatever the image size.
+
+
+PRESETS = ("paper", "cpu")
+
+
+def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
+  """The named preset for a scene format, with explicit overrides applied last.
+
+  `paper`: the reference code's defaults (128 fine samples on Blender, 64 and sigma noise
+  1.0 on LLFF). `cpu`: a smaller network and fewer samples tuned for a 2-core laptop.
+  """
+  if name not in PRESETS:
+    raise UserError(f"--preset {name}: unknown preset (choose from {', '.join(PRESETS)})")
+  llff = scene_format == "llff"
+  if name == "paper":
+    config = NerfConfig(
+        n_fine=64 if llff else 128,
+        raw_noise_std=1.0 if llff else 0.0,
+        precrop_steps=0 if llff else 500,
+        steps=200_000,
+        checkpoint_every=5000)
+  else:
+    config = NerfConfig(
+        net_depth=6,
+        net_width=128,
+        skip_layer=3,
+        n_coarse=32,
+        n_fine=64,
+        batch_rays=2048,
+        lr_init=2e-3,
+        lr_final=1e-4,
+        lr_decay_steps=12_000,
+        precrop_steps=0 if llff else 200,
+        raw_noise_std=1.0 if llff else 0.0,
+        steps=6000,
+        checkpoint_every=500)
+  return dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def config_class(kind: str) -> Type:
+  """The config dataclass of a run kind as saved in run.json."""
+  kinds: Dict[str, Type] = {"nerf": NerfConfig}
+  if kind not in kinds:
+    raise UserError(f"unknown run kind {kind!r} (known: {', '.join(sorted(kinds))})")
+  return kinds[kind]
+
+
+def to_dict(config: Any) -> Dict[str, Any]:
+  return dataclasses.asdict(config)
+
+
+def from_dict(cls: Type[T], values: Dict[str, Any], source: str = "config") -> T:
+  """Builds `cls` from a dict, naming unknown or mistyped keys in a UserError."""
+  if not isinstance(values, dict):
+    raise UserError(f"{source}: expected a JSON object, got {type(values).__name__}")
+  fields = {f.name: f for f in dataclasses.fields(cls)}
+  unknown = sorted(set(values) - set(fields))
+  if unknown:
+    raise UserError(f"{source}: unknown {cls.__name__} keys {unknown}")
+  clean = {}
+  for name, value in values.items():
+    default = fields[name].default
+    if default is not dataclasses.MISSING and default is not None and value is not None:
+      kind = type(default)
+      if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+      if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise UserError(f"{source}: {name} should be {kind.__name__}, got {value!r}")
+    clean[name] = value
+  return cls(**clean)
+
+
+def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Optional[str]:
+  """The first differing key between two nested dicts, as 'key: saved A, now B', or None."""
+  for key in sorted(set(saved) | set(current)):
+    a, b = saved.get(key, "<missing>"), current.get(key, "<missing>")
+    if isinstance(a, dict) and isinstance(b, dict):
+      found = diff(a, b, f"{prefix}{key}.")
+      if found:
+        return found
+    elif a != b:
+      return f"{prefix}{key}: saved {a!r}, now {b!r}"
+  return None

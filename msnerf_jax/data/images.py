@@ -1,0 +1,182 @@
+"""Robust image reading and writing: any common format, mode and bit depth in, float32 RGB out."""
+
+import os
+import tempfile
+import warnings
+from typing import List, Optional, Sequence
+
+import numpy as np
+from PIL import Image
+
+from msnerf_jax.errors import UserError
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+# Decoding more pixels than this is refused (8000x8000 is 64M and fine; a 1 GPixel bomb is not).
+MAX_DECODE_PIXELS = 300_000_000
+
+
+def list_images(folder: str) -> List[str]:
+  """Sorted paths of the image files (by extension) directly inside `folder`."""
+  if not os.path.exists(folder):
+    raise UserError(f"{folder}: no such folder")
+  if not os.path.isdir(folder):
+    raise UserError(f"{folder}: not a folder")
+  paths = sorted(
+      os.path.join(folder, name) for name in os.listdir(folder)
+      if name.lower().endswith(IMAGE_EXTENSIONS) and not name.startswith("."))
+  if not paths:
+    raise UserError(f"{folder}: no image files ({', '.join(IMAGE_EXTENSIONS)})")
+  return paths
+
+
+def _to_float(array: np.ndarray) -> np.ndarray:
+  if array.dtype == np.uint8:
+    return array.astype(np.float32) / 255.0
+  if array.dtype in (np.uint16, np.int32, np.uint32) or array.dtype == np.int16:
+    # 16-bit PNG/TIFF (Pillow reports 'I;16' or 'I' as int32 with values up to 65535).
+    return np.clip(array.astype(np.float32) / 65535.0, 0.0, 1.0)
+  if np.issubdtype(array.dtype, np.floating):
+    return np.clip(array.astype(np.float32), 0.0, 1.0)
+  if array.dtype == bool:
+    return array.astype(np.float32)
+  raise UserError(f"unsupported pixel type {array.dtype}")
+
+
+def read_image(path: str,
+               background: Optional[float] = 1.0,
+               max_side: Optional[int] = None,
+               keep_alpha: bool = False) -> np.ndarray:
+  """Reads an image file as float32 RGB in [0, 1].
+
+  Grayscale is replicated to RGB, palette images are expanded, 16-bit images are scaled by
+  1/65535. An alpha channel is composited over a constant `background` (Blender convention
+  `rgb * a + bg * (1 - a)`), or kept as a fourth channel when `keep_alpha`. With `max_side`,
+  images larger than that are downscaled while decoding (JPEG draft mode), so huge files
+  do not need their full-resolution buffer.
+
+  Returns:
+    [height, width, 3] (or [height, width, 4] with keep_alpha) float32.
+  Raises:
+    UserError naming the file when it is missing, empty, truncated or not an image.
+  """
+  if not os.path.exists(path):
+    raise UserError(f"{path}: no such file")
+  if os.path.isdir(path):
+    raise UserError(f"{path}: is a folder, expected an image file")
+  if os.path.getsize(path) == 0:
+    raise UserError(f"{path}: empty file")
+  try:
+    with warnings.catch_warnings():
+      warnings.simplefilter("error", Image.DecompressionBombWarning)
+      Image.MAX_IMAGE_PIXELS = MAX_DECODE_PIXELS
+      with Image.open(path) as image:
+        if max_side is not None and max(image.size) > max_side:
+          image.draft("RGB", (max_side, max_side))  # JPEG: decode at 1/2, 1/4, 1/8 scale.
+        image.load()
+        image = _normalize_mode(image)
+        if max_side is not None and max(image.size) > max_side:
+          scale = max_side / max(image.size)
+          size = (max(1, round(image.size[0] * scale)), max(1, round(image.size[1] * scale)))
+          image = image.resize(size, Image.BICUBIC if image.mode in ("RGB", "RGBA") else Image.BILINEAR)
+        array = np.asarray(image)
+  except UserError:
+    raise
+  except (Image.DecompressionBombError, Image.DecompressionBombWarning):
+    raise UserError(f"{path}: image too large to decode (over {MAX_DECODE_PIXELS} pixels)") from None
+  except (OSError, SyntaxError, ValueError) as e:
+    raise UserError(f"{path}: unreadable or truncated image ({e})") from None
+  except Exception as e:  # Pillow raises many types for corrupt data.
+    raise UserError(f"{path}: not a readable image ({type(e).__name__}: {e})") from None
+  return _to_rgb(_to_float(array), background, keep_alpha)
+
+
+def _normalize_mode(image: Image.Image) -> Image.Image:
+  """Brings any Pillow mode to one whose numpy array is L, LA, RGB, RGBA or 16-bit L."""
+  mode = image.mode
+  if mode in ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "I", "F"):
+    if mode in ("I;16B", "I;16L"):
+      return image.convert("I")
+    return image
+  if mode == "P" or mode == "PA":
+    return image.convert("RGBA")
+  if mode == "1":
+    return image.convert("L")
+  return image.convert("RGB")  # CMYK, YCbCr, LAB, HSV ...
+
+
+def _to_rgb(array: np.ndarray, background: Optional[float], keep_alpha: bool) -> np.ndarray:
+  if array.ndim == 2:
+    array = array[..., None]
+  channels = array.shape[-1]
+  if channels in (1, 2):
+    rgb = np.repeat(array[..., :1], 3, axis=-1)
+    alpha = array[..., 1:2] if channels == 2 else None
+  else:
+    rgb = array[..., :3]
+    alpha = array[..., 3:4] if channels == 4 else None
+  if keep_alpha:
+    if alpha is None:
+      alpha = np.ones_like(rgb[..., :1])
+    return np.ascontiguousarray(np.concatenate([rgb, alpha], axis=-1), dtype=np.float32)
+  if alpha is not None and background is not None:
+    rgb = rgb * alpha + background * (1.0 - alpha)
+  return np.ascontiguousarray(rgb, dtype=np.float32)
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+  """float [0, 1] -> uint8, with rounding."""
+  return (np.clip(np.asarray(image, dtype=np.float32), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def resize(image: np.ndarray, height: int, width: int) -> np.ndarray:
+  """Area/bicubic resize of a float image [h, w, c] to [height, width, c] (Pillow, per channel)."""
+  if image.shape[:2] == (height, width):
+    return image
+  channels = [
+      np.asarray(Image.fromarray(image[..., c].astype(np.float32), mode="F").resize(
+          (width, height), Image.BOX if height < image.shape[0] else Image.BICUBIC))
+      for c in range(image.shape[-1])
+  ]
+  return np.clip(np.stack(channels, axis=-1), 0.0, 1.0).astype(np.float32)
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+  """Writes `data` to `path` through a temporary file and a rename: never a partial file."""
+  folder = os.path.dirname(os.path.abspath(path))
+  os.makedirs(folder, exist_ok=True)
+  fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
+  try:
+    with os.fdopen(fd, "wb") as f:
+      f.write(data)
+    os.replace(tmp, path)
+  except BaseException:
+    if os.path.exists(tmp):
+      os.remove(tmp)
+    raise
+
+
+def write_image(path: str, image: np.ndarray) -> None:
+  """Writes a float [0, 1] or uint8 image [h, w, 3|1] atomically; format from the extension."""
+  import io
+  array = np.asarray(image)
+  if array.dtype != np.uint8:
+    array = to_uint8(array)
+  if array.ndim == 3 and array.shape[-1] == 1:
+    array = array[..., 0]
+  buffer = io.BytesIO()
+  fmt = os.path.splitext(path)[1].lower().lstrip(".") or "png"
+  fmt = {"jpg": "jpeg", "tif": "tiff"}.get(fmt, fmt)
+  Image.fromarray(array).save(buffer, format=fmt.upper())
+  atomic_write_bytes(path, buffer.getvalue())
+
+
+def stack_same_size(images: Sequence[np.ndarray], paths: Sequence[str]) -> np.ndarray:
+  """Stacks images into [n, h, w, c]; names the first file whose size differs from the first."""
+  shape = images[0].shape
+  for image, path in zip(images, paths):
+    if image.shape != shape:
+      raise UserError(
+          f"{path}: image is {image.shape[1]}x{image.shape[0]}, expected {shape[1]}x{shape[0]} "
+          f"like {paths[0]} (all views of a scene must have one size)")
+  return np.stack(images)

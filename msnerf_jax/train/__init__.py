@@ -1,0 +1,1 @@
+"""Training loops: shared machinery and one module per task."""
