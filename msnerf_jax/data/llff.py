@@ -1,0 +1,129 @@
+"""LLFF forward-facing scenes: poses_bounds.npy + images_{factor}/, recentred, NDC, spiral path."""
+
+import os
+import re
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data.scene import Scene, check_poses
+from msnerf_jax.errors import UserError
+
+
+def _normalize(x):
+  return x / np.linalg.norm(x)
+
+
+def view_matrix(z, up, pos):
+  """[3, 4] camera looking along z with the given up vector and position."""
+  vec2 = _normalize(z)
+  vec0 = _normalize(np.cross(up, vec2))
+  vec1 = _normalize(np.cross(vec2, vec0))
+  return np.stack([vec0, vec1, vec2, pos], 1)
+
+
+def poses_avg(poses):
+  """The average camera [3, 4] of poses [N, 3, >=4]."""
+  center = poses[:, :3, 3].mean(0)
+  z = _normalize(poses[:, :3, 2].sum(0))
+  up = poses[:, :3, 1].sum(0)
+  return view_matrix(z, up, center)
+
+
+def recenter_poses(poses):
+  """Expresses poses [N, 3, 4] in the frame of their average camera."""
+  bottom = np.array([[0, 0, 0, 1.0]])
+  c2w = np.concatenate([poses_avg(poses), bottom], 0)
+  full = np.concatenate([poses[:, :3, :4], np.tile(bottom[None], (len(poses), 1, 1))], 1)
+  return (np.linalg.inv(c2w) @ full)[:, :3, :4]
+
+
+def spiral_path(poses, bounds, n_views=120, n_rots=2, zrate=0.5):
+  """The reference code's spiral render path around the average camera. Returns [n, 3, 4]."""
+  c2w = poses_avg(poses)
+  up = _normalize(poses[:, :3, 1].sum(0))
+  close_depth, inf_depth = bounds.min() * 0.9, bounds.max() * 5.0
+  dt = 0.75
+  focal = 1.0 / ((1.0 - dt) / close_depth + dt / inf_depth)
+  rads = np.concatenate([np.percentile(np.abs(poses[:, :3, 3]), 90, 0), [1.0]])
+  path = []
+  for theta in np.linspace(0.0, 2.0 * np.pi * n_rots, n_views + 1)[:-1]:
+    c = c2w[:3, :4] @ (np.array([np.cos(theta), -np.sin(theta), -np.sin(theta * zrate), 1.0]) * rads)
+    z = _normalize(c - c2w[:3, :4] @ np.array([0, 0, -focal, 1.0]))
+    path.append(view_matrix(z, up, c))
+  return np.stack(path)
+
+
+def _image_folder(path: str, factor: int):
+  """images_{factor}/, or the finest images_{k} with k dividing factor (resized on load)."""
+  folder = os.path.join(path, f"images_{factor}")
+  if os.path.isdir(folder):
+    return folder, 1
+  candidates = []
+  for name in os.listdir(path):
+    m = re.fullmatch(r"images(?:_(\d+))?", name)
+    if m and os.path.isdir(os.path.join(path, name)):
+      k = int(m.group(1) or 1)
+      if factor % k == 0:
+        candidates.append((k, name))
+  if not candidates:
+    raise UserError(f"{folder}: missing (and no images_k folder with k dividing {factor})")
+  k, name = max(candidates)
+  return os.path.join(path, name), factor // k
+
+
+def load_llff(path: str, factor: int = 8, holdout: int = 8, spherify: bool = False,
+              bd_factor: float = 0.75) -> Scene:
+  """Loads an LLFF scene as the reference code does (recentred, bounds scaled, NDC rays).
+
+  Every `holdout`-th image is held out as the val and test split.
+  """
+  if spherify:
+    raise UserError("--llff-spherify: 360-degree LLFF scenes are not supported yet")
+  pb_path = os.path.join(path, "poses_bounds.npy")
+  try:
+    poses_bounds = np.load(pb_path, allow_pickle=False)
+  except FileNotFoundError:
+    raise UserError(f"{pb_path}: missing") from None
+  except (ValueError, OSError, EOFError) as e:
+    raise UserError(f"{pb_path}: not a readable .npy array ({e})") from None
+  if poses_bounds.ndim != 2 or poses_bounds.shape[1] != 17:
+    raise UserError(f"{pb_path}: shape {poses_bounds.shape}, expected [N, 17] "
+                    "(3x5 pose-hwf + 2 bounds per image)")
+  if not np.all(np.isfinite(poses_bounds)):
+    raise UserError(f"{pb_path}: holds NaN or inf")
+  folder, extra = _image_folder(path, factor)
+  files = images_lib.list_images(folder)
+  if len(files) != len(poses_bounds):
+    raise UserError(f"{folder}: {len(files)} images but {pb_path} has {len(poses_bounds)} poses")
+  imgs = []
+  for f in tqdm(files, desc="loading images", leave=False, disable=None):
+    image = images_lib.read_image(f)
+    if extra > 1:
+      image = images_lib.resize(image, image.shape[0] // extra, image.shape[1] // extra)
+    imgs.append(image)
+  images = images_lib.stack_same_size(imgs, files)
+  poses = poses_bounds[:, :15].reshape(-1, 3, 5).astype(np.float64)
+  bounds = poses_bounds[:, 15:].astype(np.float64)
+  if np.any(bounds <= 0):
+    raise UserError(f"{pb_path}: depth bounds must be positive")
+  h, w = images.shape[1:3]
+  focal = poses[0, 2, 4] * h / poses[0, 0, 4]  # hwf is stored for the full-size images.
+  # LLFF stores [down, right, back]; NeRF wants [right, up, back].
+  poses = np.concatenate([poses[:, :, 1:2], -poses[:, :, 0:1], poses[:, :, 2:4]], 2)
+  scale = 1.0 / (bounds.min() * bd_factor)
+  poses[:, :3, 3] *= scale
+  bounds = bounds * scale
+  poses = recenter_poses(poses)
+  check_poses(poses, pb_path, files)
+  render_poses = spiral_path(poses, bounds)
+  n = len(images)
+  test = np.arange(n)[::holdout] if holdout > 0 else np.array([], np.int64)
+  train = np.array([i for i in range(n) if i not in set(test)])
+  K = np.array([[focal, 0, 0.5 * w], [0, focal, 0.5 * h], [0, 0, 1]], np.float32)
+  return Scene(images=images, c2w=poses.astype(np.float32), K=K, near=float(bounds.min() * 0.9),
+               far=float(bounds.max()), ndc=True, white_background=False,
+               splits={"train": train, "val": test, "test": test},
+               render_poses=render_poses.astype(np.float32), format="llff",
+               image_paths=tuple(files))

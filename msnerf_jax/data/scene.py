@@ -1,0 +1,102 @@
+"""The Scene: posed images, intrinsics, bounds, splits and a render path; format auto-detection."""
+
+import dataclasses
+import os
+from typing import Dict, List, Tuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax import rays as rays_lib
+from msnerf_jax.config import DataConfig
+from msnerf_jax.errors import UserError
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scene:
+  """A loaded scene. Arrays are numpy on the host.
+
+  images: [N, H, W, 3] float32 in [0, 1]; c2w: [N, 3, 4] camera-to-world (OpenGL axes);
+  K: [3, 3]; splits: name -> indices into images; render_poses: [P, 3, 4] a camera path.
+  """
+  images: np.ndarray
+  c2w: np.ndarray
+  K: np.ndarray
+  near: float
+  far: float
+  ndc: bool
+  white_background: bool
+  splits: Dict[str, np.ndarray]
+  render_poses: np.ndarray
+  format: str
+  image_paths: Tuple[str, ...]
+
+  @property
+  def height(self) -> int:
+    return int(self.images.shape[1])
+
+  @property
+  def width(self) -> int:
+    return int(self.images.shape[2])
+
+  @property
+  def focal(self) -> float:
+    return float(self.K[0, 0])
+
+  def split(self, name: str) -> np.ndarray:
+    if name not in self.splits or len(self.splits[name]) == 0:
+      raise UserError(f"scene has no {name!r} split (has: {', '.join(sorted(self.splits))})")
+    return self.splits[name]
+
+  def camera_rays(self, c2w: np.ndarray) -> Dict[str, jnp.ndarray]:
+    """ray_bundle for every pixel of one camera: [H, W, ...]."""
+    origins, directions = rays_lib.get_rays(self.height, self.width, self.K, c2w)
+    return self.bundle(origins, directions)
+
+  def bundle(self, origins, directions) -> Dict[str, jnp.ndarray]:
+    """ray_bundle with this scene's bounds and NDC setting."""
+    return rays_lib.ray_bundle(origins, directions, self.near, self.far, self.ndc,
+                               self.height, self.width, self.focal)
+
+
+def detect_format(path: str) -> str:
+  """"blender" if transforms_*.json exist, "llff" if poses_bounds.npy exists."""
+  if not os.path.exists(path):
+    raise UserError(f"{path}: no such scene folder")
+  if not os.path.isdir(path):
+    raise UserError(f"{path}: not a folder")
+  names = os.listdir(path)
+  if any(n.startswith("transforms_") and n.endswith(".json") for n in names):
+    return "blender"
+  if "poses_bounds.npy" in names:
+    return "llff"
+  raise UserError(f"{path}: not a scene folder (no transforms_*.json and no poses_bounds.npy)")
+
+
+def load_scene(config: DataConfig) -> Tuple[Scene, DataConfig]:
+  """Loads the scene a DataConfig names.
+
+  Returns:
+    (scene, resolved config): the config has the detected format and the actual downscale.
+  """
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data import blender, llff
+  fmt = detect_format(config.path) if config.format == "auto" else config.format
+  if fmt == "blender":
+    downscale = config.downscale or 1
+    scene = blender.load_blender(config.path, downscale)
+  elif fmt == "llff":
+    downscale = config.downscale or 8
+    scene = llff.load_llff(config.path, downscale, config.llff_holdout, config.llff_spherify)
+  else:
+    raise UserError(f"--format {fmt}: unknown scene format (blender or llff)")
+  return scene, dataclasses.replace(config, format=fmt, downscale=downscale)
+
+
+def check_poses(poses: np.ndarray, source: str, names: List[str]) -> None:
+  """Rejects non-finite or singular camera rotations, naming the first bad view."""
+  for pose, name in zip(poses, names):
+    if not np.all(np.isfinite(pose)):
+      raise UserError(f"{source}: camera of {name} has NaN or inf entries")
+    if abs(np.linalg.det(pose[:3, :3])) < 1e-6:
+      raise UserError(f"{source}: camera of {name} has a singular rotation matrix")

@@ -1,0 +1,94 @@
+"""The NeRF MLP: a `trunk` (points -> density and view features) and an `rgb` layer."""
+
+from typing import Dict, Tuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from msnerf_jax.encoding import positional_encoding
+
+
+class NerfTrunk(nn.Module):
+  """Everything of the NeRF MLP but the final colour layer; frozen by the multi-style model.
+
+  Point layers (`point_0` ... with the encoded input re-concatenated after `skip_layer`),
+  the density head `density` (W -> 1), the feature layer `feature` (W -> W) and the view
+  layer `view` ((W + encoded dirs) -> W/2, ReLU), as in the reference code.
+  """
+  depth: int = 8
+  width: int = 256
+  skip_layer: int = 4
+  pos_freqs: int = 10
+  dir_freqs: int = 4
+
+  @nn.compact
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray) -> Dict[str, jnp.ndarray]:
+    """Args: points [..., 3]; viewdirs [..., 3] (unit), or [..., 1, 3] (one per ray,
+    encoded once and broadcast over the samples).
+
+    Returns: dict of raw density `sigma` [...] (before activation), `hidden` [..., W]
+    (last point layer) and `view_features` [..., W/2].
+    """
+    x = positional_encoding(points, self.pos_freqs)
+    h = x
+    for i in range(self.depth):
+      h = nn.relu(nn.Dense(self.width, name=f"point_{i}")(h))
+      if i == self.skip_layer:
+        h = jnp.concatenate([x, h], -1)
+    sigma = nn.Dense(1, name="density")(h)[..., 0]
+    feature = nn.Dense(self.width, name="feature")(h)
+    d = positional_encoding(viewdirs, self.dir_freqs)
+    d = jnp.broadcast_to(d, (*feature.shape[:-1], d.shape[-1]))
+    view = nn.relu(nn.Dense(self.width // 2, name="view")(jnp.concatenate([feature, d], -1)))
+    return {"sigma": sigma, "hidden": h, "view_features": view}
+
+
+class NerfMLP(nn.Module):
+  """Trunk + the final colour layer `rgb` (W/2 -> 3, sigmoid).
+
+  Params: {"trunk": {...}, "rgb": {...}}.
+  """
+  depth: int = 8
+  width: int = 256
+  skip_layer: int = 4
+  pos_freqs: int = 10
+  dir_freqs: int = 4
+
+  @nn.compact
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray
+               ) -> Tuple[jnp.ndarray, jnp.ndarray]:
+    """Args: points [..., 3], viewdirs [..., 3]. Returns rgb [..., 3] in [0, 1], raw sigma [...]."""
+    out = NerfTrunk(self.depth, self.width, self.skip_layer, self.pos_freqs,
+                    self.dir_freqs, name="trunk")(points, viewdirs)
+    rgb = nn.sigmoid(nn.Dense(3, name="rgb")(out["view_features"]))
+    return rgb, out["sigma"]
+
+
+def nerf_mlp(config) -> NerfMLP:
+  """The MLP of a NerfConfig."""
+  return NerfMLP(config.net_depth, config.net_width, config.skip_layer, config.pos_freqs,
+                 config.dir_freqs)
+
+
+def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:
+  """Fresh params of a run: {"coarse": {"trunk", "rgb"}, "fine": {"trunk", "rgb"}}."""
+  model = nerf_mlp(config)
+  k_coarse, k_fine = jax.random.split(key)
+  x = jnp.zeros((1, 3), jnp.float32)
+  return {"coarse": model.init(k_coarse, x, x)["params"],
+          "fine": model.init(k_fine, x, x)["params"]}
+
+
+def mlp_flops_per_sample(config) -> int:
+  """Multiply-adds x 2 of one forward pass of the MLP at one sample (matmuls only)."""
+  in_pts = 3 * (1 + 2 * config.pos_freqs)
+  in_dir = 3 * (1 + 2 * config.dir_freqs)
+  w = config.net_width
+  macs = 0
+  fan_in = in_pts
+  for i in range(config.net_depth):
+    macs += fan_in * w
+    fan_in = w + (in_pts if i == config.skip_layer else 0)
+  macs += fan_in * 1 + fan_in * w + (w + in_dir) * (w // 2) + (w // 2) * 3
+  return 2 * macs

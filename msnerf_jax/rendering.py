@@ -1,0 +1,46 @@
+"""The volume-rendering equation (NeRF eq. 3) as one short function."""
+
+from typing import Dict
+
+import chex
+import jax.numpy as jnp
+
+
+def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
+                  directions: jnp.ndarray, white_background: bool = False
+                  ) -> Dict[str, jnp.ndarray]:
+  """Composites samples along rays into pixel colours.
+
+  C = sum_i T_i alpha_i c_i with alpha_i = 1 - exp(-sigma_i delta_i) and
+  T_i = prod_{j<i} (1 - alpha_j); the last interval is 1e10 (the ray escapes) and every
+  delta is scaled by |direction| so depths are in world units.
+
+  Args:
+    rgb: [..., n, 3] colours in [0, 1] (activated).
+    sigma: [..., n] densities >= 0 (activated).
+    z_vals: [..., n] sample depths along the ray, increasing.
+    directions: [..., 3] ray directions (not necessarily unit length).
+    white_background: composite over white: rgb + (1 - accumulation).
+  Returns:
+    dict of rgb [..., 3], depth [...], disparity [...], accumulation [...], weights [..., n].
+  """
+  chex.assert_equal_shape([rgb[..., 0], sigma, z_vals])
+  deltas = z_vals[..., 1:] - z_vals[..., :-1]
+  deltas = jnp.concatenate([deltas, jnp.full_like(deltas[..., :1], 1e10)], -1)
+  deltas = deltas * jnp.linalg.norm(directions[..., None, :], axis=-1)
+  alpha = 1.0 - jnp.exp(-sigma * deltas)
+  # T_i: the reference code adds 1e-10 inside the product to keep it from reaching 0 exactly.
+  trans = jnp.cumprod(
+      jnp.concatenate([jnp.ones_like(alpha[..., :1]), 1.0 - alpha + 1e-10], -1), -1)[..., :-1]
+  weights = alpha * trans
+  acc = jnp.sum(weights, -1)
+  color = jnp.sum(weights[..., None] * rgb, -2)
+  depth = jnp.sum(weights * z_vals, -1)
+  # Expected depth of what was hit; an empty ray (acc = 0) gets depth 0 and disparity 1e10,
+  # never 0/0: the guard keeps NaN out of both values and their gradients.
+  safe_acc = jnp.maximum(acc, 1e-10)
+  disparity = 1.0 / jnp.maximum(1e-10, jnp.where(acc > 1e-10, depth / safe_acc, 0.0))
+  if white_background:
+    color = color + (1.0 - acc[..., None])
+  return {"rgb": color, "depth": depth, "disparity": disparity, "accumulation": acc,
+          "weights": weights}

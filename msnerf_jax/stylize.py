@@ -1,0 +1,188 @@
+"""Stylizing images with a trained AdaIN decoder: cover-crop styles, alpha, blends, colour."""
+
+import dataclasses
+import os
+from typing import Any, Optional, Sequence
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax import adain as adain_lib
+from msnerf_jax import checkpoint as checkpoint_lib
+from msnerf_jax import config as config_lib
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.errors import UserError
+from msnerf_jax.models import decoder as decoder_lib
+from msnerf_jax.models import vgg
+
+
+def cover_crop(image: np.ndarray, height: int, width: int) -> np.ndarray:
+  """Resizes [h, w, 3] to cover height x width (aspect kept), then centre-crops to it."""
+  h, w = image.shape[:2]
+  scale = max(height / h, width / w)
+  nh, nw = max(height, round(h * scale)), max(width, round(w * scale))
+  image = images_lib.resize(image, nh, nw)
+  y, x = (nh - height) // 2, (nw - width) // 2
+  return image[y:y + height, x:x + width]
+
+
+def match_color(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5) -> jnp.ndarray:
+  """Colour-preserving transfer (Gatys et al., used by the AdaIN paper sec. 7.2).
+
+  An affine map of `source`'s RGB values so that their mean and covariance equal those of
+  `target`: x' = C_t^1/2 C_s^-1/2 (x - mu_s) + mu_t.
+
+  Args:
+    source: [h, w, 3] (the style image), target: [h', w', 3] (the content image).
+  Returns:
+    [h, w, 3], clipped to [0, 1].
+  """
+  chex.assert_rank([source, target], 3)
+
+  def stats(x):
+    flat = x.reshape(-1, 3)
+    mu = jnp.mean(flat, axis=0)
+    centred = flat - mu
+    # eps * I keeps the inverse square root finite on flat (e.g. grey) images.
+    cov = centred.T @ centred / max(flat.shape[0] - 1, 1) + eps * jnp.eye(3)
+    return mu, cov
+
+  def sqrtm(c, power):
+    vals, vecs = jnp.linalg.eigh(c)
+    return (vecs * jnp.maximum(vals, eps) ** power) @ vecs.T
+
+  mu_s, cov_s = stats(source)
+  mu_t, cov_t = stats(target)
+  transform = sqrtm(cov_t, 0.5) @ sqrtm(cov_s, -0.5)
+  out = (source.reshape(-1, 3) - mu_s) @ transform.T + mu_t
+  return jnp.clip(out.reshape(source.shape), 0.0, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Decoder:
+  """A trained decoder loaded from a run folder."""
+  run_dir: str
+  config: config_lib.AdainConfig
+  params: Any
+  step: int
+
+
+def load_decoder(run_dir: str) -> Decoder:
+  """Loads and checks an AdaIN run folder (kind, encoder, parameter shapes).
+
+  Raises:
+    UserError naming the file when it is not an AdaIN run, was trained against another
+    encoder, or its checkpoint has other layer sizes.
+  """
+  run_file = os.path.join(run_dir, checkpoint_lib.RUN_FILE)
+  record = checkpoint_lib.read_run_file(run_dir)
+  if record["kind"] != "adain":
+    raise UserError(f"{run_file}: a {record['kind']!r} run, not an AdaIN decoder "
+                    "(train one with `msnerf adain train`)")
+  config = config_lib.from_dict(config_lib.AdainConfig, record["config"], run_file)
+  if config.encoder != vgg.ENCODER_NAME:
+    raise UserError(f"{run_file}: decoder trained for encoder {config.encoder!r}, "
+                    f"this build has {vgg.ENCODER_NAME!r}")
+  if config.upsample not in decoder_lib.UPSAMPLE_MODES:
+    raise UserError(f"{run_file}: unknown upsample mode {config.upsample!r}")
+  run = checkpoint_lib.load_run(run_dir)
+  expected = jax.eval_shape(lambda: decoder_lib.init_decoder(jax.random.PRNGKey(0), config.upsample))
+  ckpt = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR, str(run.step))
+  # The checkpoint holds the flax variables {"params": {"conv0": ...}}.
+  got_struct = jax.tree_util.tree_structure(run.params)
+  want_struct = jax.tree_util.tree_structure(expected)
+  if got_struct != want_struct:
+    raise UserError(f"{ckpt}: checkpoint is not a decoder for this encoder (other layers)")
+  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
+                               jax.tree_util.tree_leaves(run.params)):
+    if tuple(want.shape) != tuple(np.shape(got)):
+      name = jax.tree_util.keystr(path)
+      raise UserError(f"{ckpt}: layer {name} is {tuple(np.shape(got))}, expected "
+                      f"{tuple(want.shape)} (a decoder of another encoder or size)")
+  params = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32), run.params)
+  return Decoder(run_dir=run_dir, config=config, params=params, step=run.step)
+
+
+def style_stats_relu4_1(encoder_params: Any, styles: jnp.ndarray) -> tuple:
+  """(mean [K, 512], std [K, 512]) of relu4_1 of style images [K, H, W, 3]."""
+  return adain_lib.channel_stats(adain_lib.encode(encoder_params, styles)["relu4_1"])
+
+
+def decode_with_stats(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
+                      mean: jnp.ndarray, std: jnp.ndarray, alpha: float, upsample: str) -> jnp.ndarray:
+  """Content [1, H, W, 3] with target relu4_1 statistics (mean, std [1, 512]) -> [1, H, W, 3].
+
+  H and W should be multiples of 8 (the decoder output is 8x the relu4_1 size).
+  """
+  feats = adain_lib.encode(encoder_params, content)["relu4_1"]
+  target = adain_lib.adain_from_stats(feats, mean, std, alpha)
+  return jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, target), 0.0, 1.0)
+
+
+def stylize_arrays(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
+                   styles: jnp.ndarray, weights: jnp.ndarray, alpha: float,
+                   upsample: str) -> jnp.ndarray:
+  """Stylizes one content image with a weighted blend of K styles (all jit-able).
+
+  Args:
+    content: [1, H, W, 3] in [0, 1], H, W multiples of 8.
+    styles: [K, H', W', 3] in [0, 1].
+    weights: [K] non-negative (normalised here).
+    alpha: style strength in [0, 1].
+  Returns:
+    [1, H, W, 3] in [0, 1].
+  """
+  chex.assert_shape(content, (1, None, None, 3))
+  chex.assert_rank(styles, 4)
+  means, stds = style_stats_relu4_1(encoder_params, styles)
+  mean, std = adain_lib.blend_stats(means, stds, weights)
+  return decode_with_stats(decoder_params, encoder_params, content, mean, std, alpha, upsample)
+
+
+_stylize_jit = jax.jit(stylize_arrays, static_argnames=("upsample",))
+
+
+def pad_to_multiple(image: np.ndarray, multiple: int = 8) -> np.ndarray:
+  """Reflect-pads [h, w, 3] at the bottom/right to multiples of `multiple`."""
+  h, w = image.shape[:2]
+  ph, pw = (-h) % multiple, (-w) % multiple
+  if ph == 0 and pw == 0:
+    return image
+  return np.pad(image, ((0, ph), (0, pw), (0, 0)), mode="reflect" if min(h, w) > max(ph, pw) else "edge")
+
+
+def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
+                  styles: Sequence[np.ndarray], weights: Optional[Sequence[float]] = None,
+                  alpha: float = 1.0, preserve_color: bool = False) -> np.ndarray:
+  """Stylizes content [H, W, 3] with styles (each [h, w, 3]), blended by `weights`.
+
+  Each style is resized to cover the content and centre-cropped to its size (reference
+  behaviour for NeRF views); with `preserve_color`, each style's colours are first matched
+  to the content's. Returns [H, W, 3] float32 in [0, 1].
+  """
+  if not styles:
+    raise UserError("no style image given")
+  weights = [1.0] * len(styles) if weights is None else list(weights)
+  check_weights(weights, len(styles))
+  if not 0.0 <= alpha <= 1.0:
+    raise UserError(f"--alpha {alpha}: must be in [0, 1]")
+  h, w = content.shape[:2]
+  padded = pad_to_multiple(content)
+  ph, pw = padded.shape[:2]
+  crops = np.stack([cover_crop(s, ph, pw) for s in styles])
+  if preserve_color:
+    crops = np.stack([np.asarray(match_color(jnp.asarray(s), jnp.asarray(padded))) for s in crops])
+  out = _stylize_jit(decoder.params, encoder_params, jnp.asarray(padded[None]), jnp.asarray(crops),
+                     jnp.asarray(weights, jnp.float32), jnp.float32(alpha),
+                     upsample=decoder.config.upsample)
+  return np.asarray(out[0, :h, :w])
+
+
+def check_weights(weights: Sequence[float], n_styles: int) -> None:
+  """UserError unless there is one non-negative weight per style and their sum is positive."""
+  if len(weights) != n_styles:
+    raise UserError(f"--weights: got {len(weights)} weights for {n_styles} styles")
+  if any(not np.isfinite(x) or x < 0 for x in weights) or sum(weights) <= 0:
+    raise UserError(f"--weights {' '.join(map(str, weights))}: must be >= 0 with a positive sum")

@@ -1,0 +1,343 @@
+"""AdaIN decoder training: content + style loss through the frozen VGG, batches from a thread."""
+
+import dataclasses
+import functools
+import math
+import os
+import queue
+import threading
+import time
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from msnerf_jax import adain as adain_lib
+from msnerf_jax import checkpoint as checkpoint_lib
+from msnerf_jax import config as config_lib
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.errors import UserError
+from msnerf_jax.models import decoder as decoder_lib
+from msnerf_jax.models import vgg
+
+KIND = "adain"
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def split_holdout(paths: Sequence[str], every: int) -> Tuple[List[str], List[str]]:
+  """(train, held out) of one folder's sorted paths: with every > 0, indices i % every == every - 1
+  are held out (never trained on)."""
+  if every <= 0:
+    return list(paths), []
+  train = [p for i, p in enumerate(paths) if i % every != every - 1]
+  held = [p for i, p in enumerate(paths) if i % every == every - 1]
+  if not train:
+    train, held = held, []
+  return train, held
+
+
+def load_for_crops(path: str, resize: int, size: int) -> np.ndarray:
+  """Reads an image as uint8 [h, w, 3] with shorter side `resize` (at least `size`)."""
+  image = images_lib.read_image(path, max_side=4 * max(resize, size))
+  h, w = image.shape[:2]
+  scale = max(resize, size) / min(h, w)
+  nh, nw = max(size, round(h * scale)), max(size, round(w * scale))
+  return images_lib.to_uint8(images_lib.resize(image, nh, nw))
+
+
+def random_crops(rng: np.random.Generator, pools: Sequence[Sequence[np.ndarray]], batch: int,
+                 size: int) -> np.ndarray:
+  """A batch of random size x size crops with random horizontal flips.
+
+  Each item picks a pool (folder) uniformly, then an image of it uniformly, so a folder of
+  100 near-identical views does not drown one of 7 photos.
+  Returns: [batch, size, size, 3] float32 in [0, 1].
+  """
+  out = np.empty((batch, size, size, 3), np.float32)
+  for b in range(batch):
+    pool = pools[rng.integers(len(pools))]
+    image = pool[rng.integers(len(pool))]
+    h, w = image.shape[:2]
+    y, x = rng.integers(h - size + 1), rng.integers(w - size + 1)
+    crop = image[y:y + size, x:x + size]
+    if rng.random() < 0.5:
+      crop = crop[:, ::-1]
+    out[b] = crop.astype(np.float32) / 255.0
+  return out
+
+
+class BatchLoader:
+  """Prepares (content, style) batches for steps [start, end) in a background thread.
+
+  The batch of step s is drawn from np.random.default_rng([seed, s]), so a resumed run sees
+  the same batches. Errors in the thread are re-raised by `next()`.
+  """
+
+  def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig, start: int,
+               end: int, prefetch: int = 3):
+    self._queue: "queue.Queue" = queue.Queue(maxsize=prefetch)
+    self._stop = threading.Event()
+    self._args = (content_pools, style_pools, config, start, end)
+    self._thread = threading.Thread(target=self._run, daemon=True)
+    self._thread.start()
+
+  def _run(self):
+    content_pools, style_pools, config, start, end = self._args
+    try:
+      for step in range(start, end):
+        rng = np.random.default_rng([config.seed, step])
+        item = (random_crops(rng, content_pools, config.batch, config.size),
+                random_crops(rng, style_pools, config.batch, config.size))
+        while not self._stop.is_set():
+          try:
+            self._queue.put(item, timeout=0.1)
+            break
+          except queue.Full:
+            continue
+        if self._stop.is_set():
+          return
+    except BaseException as e:  # pylint: disable=broad-except
+      self._queue.put(e)
+
+  def next(self) -> Tuple[np.ndarray, np.ndarray]:
+    item = self._queue.get()
+    if isinstance(item, BaseException):
+      raise item
+    return item
+
+  def close(self):
+    self._stop.set()
+    self._thread.join(timeout=5)
+
+
+# ----------------------------------------------------------------------------- losses and step
+
+
+def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style: jnp.ndarray,
+           config: config_lib.AdainConfig) -> Tuple[jnp.ndarray, Dict[str, jnp.ndarray]]:
+  """AdaIN training loss (Huang & Belongie eq. 11-13).
+
+  Args:
+    content, style: [B, S, S, 3] in [0, 1].
+  Returns:
+    (total [], {"loss", "content", "style"}): content = MSE(relu4_1(g(t)), t) with
+    t = AdaIN(f(c), f(s)); style = sum over relu1_1..relu4_1 of MSE of means + MSE of stds.
+  """
+  chex.assert_equal_shape([content, style])
+  encoder_params = jax.lax.stop_gradient(encoder_params)  # frozen: XLA drops its backward.
+  content_feats = adain_lib.encode(encoder_params, content)["relu4_1"]
+  target_stats = adain_lib.style_stats(encoder_params, style)
+  target = adain_lib.adain_from_stats(content_feats, *target_stats["relu4_1"])
+  target = jax.lax.stop_gradient(target)
+  output = decoder_lib.Decoder(config.upsample).apply(decoder_params, target)
+  out_feats = adain_lib.encode(encoder_params, output)
+  content_loss = jnp.mean(jnp.square(out_feats["relu4_1"] - target))
+  out_stats = {name: adain_lib.channel_stats(out_feats[name]) for name in vgg.STYLE_LAYERS}
+  style_loss = adain_lib.style_loss(out_stats, jax.lax.stop_gradient(target_stats))
+  total = config.content_weight * content_loss + config.style_weight * style_loss
+  return total, {"loss": total, "content": content_loss, "style": style_loss}
+
+
+def make_optimizer(config: config_lib.AdainConfig) -> optax.GradientTransformation:
+  """Adam with the reference code's lr / (1 + decay * step)."""
+  schedule = lambda count: config.lr / (1.0 + config.lr_decay * count)
+  return optax.adam(schedule)
+
+
+@functools.lru_cache(maxsize=8)
+def make_train_step(config: config_lib.AdainConfig):
+  """jitted (params, opt_state, encoder_params, content, style) -> (params, opt_state, metrics).
+
+  Cached per (frozen) config, so a resumed or repeated run in one process compiles once.
+  """
+  optimizer = make_optimizer(config)
+
+  def step(params, opt_state, encoder_params, content, style):
+    grads, metrics = jax.grad(losses, has_aux=True)(params, encoder_params, content, style, config)
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state, metrics
+
+  return jax.jit(step, donate_argnums=(0, 1))
+
+
+@functools.lru_cache(maxsize=4)
+def make_stylize_fn(upsample: str):
+  """jitted (decoder_params, encoder_params, content [B,H,W,3], style [B,H',W',3]) -> [B,H,W,3]."""
+
+  def fn(decoder_params, encoder_params, content, style):
+    feats = adain_lib.encode(encoder_params, content)["relu4_1"]
+    style_feats = adain_lib.encode(encoder_params, style)["relu4_1"]
+    out = decoder_lib.Decoder(upsample).apply(decoder_params, adain_lib.adain(feats, style_feats))
+    return jnp.clip(out, 0.0, 1.0)
+
+  return jax.jit(fn)
+
+
+def sample_grid(content: np.ndarray, style: np.ndarray, output: np.ndarray) -> np.ndarray:
+  """Rows of (content | style | output) with 4-pixel white gaps: [B*S + gaps, 3*S + gaps, 3]."""
+  rows = []
+  gap = 4
+  for c, s, o in zip(content, style, output):
+    sep = np.ones((c.shape[0], gap, 3), np.float32)
+    rows.append(np.concatenate([c, sep, s, sep, o], axis=1))
+    rows.append(np.ones((gap, rows[-1].shape[1], 3), np.float32))
+  return np.concatenate(rows[:-1], axis=0)
+
+
+def _all_finite(tree) -> bool:
+  return all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(tree))
+
+
+# ----------------------------------------------------------------------------- training loop
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainResult:
+  run_dir: str
+  step: int
+  metrics: Dict[str, float]
+  seconds: float
+  images_per_second: float
+
+
+def collect_content(content_dirs: Sequence[str], holdout_every: int) -> Tuple[List[List[str]], List[str]]:
+  """Per-folder training paths and the held-out paths of the content folders."""
+  groups, held = [], []
+  for folder in content_dirs:
+    train, out = split_holdout(images_lib.list_images(folder), holdout_every)
+    groups.append(train)
+    held += out
+  return groups, held
+
+
+def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
+          run_dir: str, progress: bool = True, log=print) -> TrainResult:
+  """Trains (or resumes) an AdaIN decoder in `run_dir`.
+
+  Writes run.json, checkpoints/ (orbax, params + Adam state + step), samples/step_N.png
+  (content | style | output) every `sample_every` steps, and holdout.txt (the held-out
+  content files, for evaluation). A NaN/inf loss stops training with a UserError naming
+  the step; the last good checkpoint is kept.
+  """
+  if config.upsample not in decoder_lib.UPSAMPLE_MODES:
+    raise UserError(f"--upsample {config.upsample}: choose from {', '.join(decoder_lib.UPSAMPLE_MODES)}")
+  if config.size < 16 or config.size % 8:
+    raise UserError(f"--size {config.size}: must be a multiple of 8, at least 16")
+  if config.batch < 1 or config.steps < 1:
+    raise UserError("--batch and --steps must be positive")
+  # Validate every input before touching the run folder.
+  groups, held = collect_content(content_dirs, config.holdout_every)
+  style_paths = images_lib.list_images(style_dir)
+  encoder_params = vgg.load_vgg_params()
+  record = {"config": config_lib.to_dict(config),
+            "content": [os.path.abspath(d) for d in content_dirs],
+            "styles": os.path.abspath(style_dir),
+            "holdout": [os.path.abspath(p) for p in held]}
+  log(f"reading {sum(map(len, groups))} content images ({len(held)} held out) "
+      f"and {len(style_paths)} style images")
+  content_pools = [[load_for_crops(p, config.resize, config.size) for p in g] for g in groups]
+  style_pools = [[load_for_crops(p, config.resize, config.size) for p in style_paths]]
+
+  resumed = checkpoint_lib.prepare_run_dir(run_dir, KIND, record)
+  images_lib.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
+                                "".join(p + "\n" for p in record["holdout"]).encode())
+  optimizer = make_optimizer(config)
+  params = decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
+  opt_state = optimizer.init(params)
+  checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
+  start = 0
+  if resumed and checkpoints.latest_step() is not None:
+    template = {"params": params, "opt_state": opt_state, "step": np.asarray(0, np.int64)}
+    restored = checkpoints.restore(template)
+    params, opt_state, start = restored["params"], restored["opt_state"], int(restored["step"])
+    log(f"resuming {run_dir} from step {start}")
+  last_good = start if (resumed and checkpoints.latest_step() is not None) else None
+  if start >= config.steps:
+    checkpoints.close()
+    log(f"{run_dir}: already trained to step {start} (>= --steps {config.steps})")
+    return TrainResult(run_dir, start, {}, 0.0, 0.0)
+
+  train_step = make_train_step(config)
+  stylize = make_stylize_fn(config.upsample)
+  sample_rng = np.random.default_rng([config.seed, 10**9])
+  n_samples = min(4, config.batch)
+  sample_content = random_crops(sample_rng, content_pools, n_samples, config.size)
+  sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
+  os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
+
+  def save(step):
+    nonlocal last_good
+    if not _all_finite(params):
+      raise UserError(f"{run_dir}: parameters became NaN/inf by step {step}; stopped, "
+                      f"last good checkpoint: step {last_good}")
+    checkpoints.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
+    last_good = step
+
+  def write_sample(step):
+    out = np.asarray(stylize(params, encoder_params, sample_content, sample_style))
+    path = os.path.join(run_dir, "samples", f"step_{step:07d}.png")
+    images_lib.write_image(path, sample_grid(sample_content, sample_style, out))
+    return path
+
+  loader = BatchLoader(content_pools, style_pools, config, start, config.steps)
+  bar = None
+  if progress:
+    from tqdm import tqdm  # pylint: disable=g-import-not-at-top
+    bar = tqdm(total=config.steps, initial=start, desc="adain", unit="step", dynamic_ncols=True)
+  metrics: Dict[str, float] = {}
+  t0, timed_from, timed_steps = time.time(), None, 0
+  step = done = start
+  try:
+    for step in range(start + 1, config.steps + 1):
+      content, style = loader.next()
+      params, opt_state, m = train_step(params, opt_state, encoder_params, content, style)
+      metrics = {k: float(v) for k, v in m.items()}
+      if not all(math.isfinite(v) for v in metrics.values()):
+        raise UserError(f"step {step}: loss is {metrics['loss']} (NaN/inf); stopped; last good "
+                        f"checkpoint: {'step ' + str(last_good) if last_good is not None else 'none'} "
+                        f"in {checkpoints.directory} (lower --lr?)")
+      done = step
+      if timed_from is None:
+        timed_from = time.time()  # throughput excludes the first (compiling) step.
+      else:
+        timed_steps += 1
+      if bar is not None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{metrics['loss']:.3f}", content=f"{metrics['content']:.3f}",
+                        style=f"{metrics['style']:.3f}")
+      if step % config.sample_every == 0 or step == config.steps:
+        write_sample(step)
+      if step % config.checkpoint_every == 0 or step == config.steps:
+        save(step)
+  except KeyboardInterrupt:
+    if done > start and all(math.isfinite(v) for v in metrics.values()):
+      save(done)
+    raise
+  finally:
+    loader.close()
+    if bar is not None:
+      bar.close()
+    checkpoints.close()
+  seconds = time.time() - t0
+  rate = timed_steps * config.batch / (time.time() - timed_from) if timed_steps else 0.0
+  summary = {"step": done, "metrics": metrics, "seconds": round(seconds, 1),
+             "images_per_second": round(rate, 3)}
+  _write_summary(run_dir, summary)
+  log(f"trained {run_dir} to step {done} in {seconds:.0f} s ({rate:.2f} images/s); "
+      f"loss {metrics.get('loss', float('nan')):.4f} (content {metrics.get('content', float('nan')):.4f}, "
+      f"style {metrics.get('style', float('nan')):.4f}); checkpoints in {run_dir}/checkpoints, "
+      f"samples in {run_dir}/samples")
+  return TrainResult(run_dir, done, metrics, seconds, rate)
+
+
+def _write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
+  import json  # pylint: disable=g-import-not-at-top
+  record = checkpoint_lib.read_run_file(run_dir)
+  record["summary"] = summary
+  images_lib.atomic_write_bytes(os.path.join(run_dir, checkpoint_lib.RUN_FILE),
+                                json.dumps(record, indent=2, sort_keys=True).encode())

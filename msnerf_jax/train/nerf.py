@@ -1,0 +1,219 @@
+"""Training and evaluating a vanilla NeRF, top to bottom: batch -> coarse/fine render -> MSE -> Adam."""
+
+import dataclasses
+import functools
+import json
+import os
+import time
+from typing import Any, Callable, Dict, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from msnerf_jax import checkpoint as ckpt_lib
+from msnerf_jax import config as config_lib
+from msnerf_jax import metrics
+from msnerf_jax import rays as rays_lib
+from msnerf_jax import render as render_lib
+from msnerf_jax.config import DataConfig, NerfConfig
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.errors import UserError
+from msnerf_jax.models.nerf import init_nerf_params, nerf_mlp
+from msnerf_jax.train import state as state_lib
+
+
+@dataclasses.dataclass(frozen=True)
+class NerfField:
+  """The radiance field of a NerfConfig as a hashable callable (a static jit argument)."""
+  config: NerfConfig
+
+  def __call__(self, params, points, viewdirs):
+    return nerf_mlp(self.config).apply({"params": params}, points, viewdirs)
+
+
+# ----------------------------------------------------------------------------- batches
+
+
+@functools.partial(jax.jit, static_argnames=("config", "precrop", "ndc", "shape"))
+def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bool,
+                 shape, near: float, far: float):
+  """A random global batch of training rays with their target colours and randomness.
+
+  Args:
+    images: [N, H, W, 3] training images; c2w: [N, 3, 4]; K: [3, 3].
+    precrop: draw pixels only from the central precrop_frac of each image.
+    shape: (H, W, focal) static for the NDC warp.
+  Returns:
+    {"rays": ray_bundle [B], "rgb": [B, 3], "random": draw_randomness [B, ...]}.
+  """
+  n, h, w = images.shape[:3]
+  k_img, k_row, k_col, k_rand = jax.random.split(key, 4)
+  b = config.batch_rays
+  idx = jax.random.randint(k_img, (b,), 0, n)
+  if precrop:
+    dh, dw = int(h // 2 * config.precrop_frac), int(w // 2 * config.precrop_frac)
+    rows = jax.random.randint(k_row, (b,), h // 2 - dh, h // 2 + dh)
+    cols = jax.random.randint(k_col, (b,), w // 2 - dw, w // 2 + dw)
+  else:
+    rows = jax.random.randint(k_row, (b,), 0, h)
+    cols = jax.random.randint(k_col, (b,), 0, w)
+  origins, directions = rays_lib.pixel_rays(K, c2w[idx], rows, cols)
+  rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, shape[0], shape[1], shape[2])
+  return {"rays": rays, "rgb": images[idx, rows, cols],
+          "random": render_lib.draw_randomness(k_rand, b, config)}
+
+
+# ----------------------------------------------------------------------------- the step
+
+
+def loss_fn(params, batch, config: NerfConfig, white_background: bool):
+  """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6)."""
+  out = render_lib.render_rays(NerfField(config), params, batch["rays"], config,
+                               batch["random"], white_background)
+  mse_coarse = jnp.mean((out["coarse"]["rgb"] - batch["rgb"]) ** 2)
+  mse_fine = jnp.mean((out["fine"]["rgb"] - batch["rgb"]) ** 2)
+  return mse_coarse + mse_fine, {"loss": mse_coarse + mse_fine, "mse_coarse": mse_coarse,
+                                 "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+
+
+def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
+               white_background: bool, axis_name: Optional[str] = None):
+  """One optimizer step on a batch; under pmap, gradients are averaged across `axis_name`.
+
+  The same function runs under jax.jit (axis_name=None) or jax.pmap(axis_name="batch").
+  """
+  grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, config, white_background)
+  if axis_name is not None:
+    grads = jax.lax.pmean(grads, axis_name)
+    stats = jax.lax.pmean(stats, axis_name)
+  return state.apply_gradients(grads=grads), stats
+
+
+@functools.lru_cache(maxsize=8)
+def compile_train_step(config: NerfConfig, white_background: bool, n_devices: int):
+  """jit (one device) or pmap (several) wrapper of train_step; the state is donated.
+
+  Cached per (config, background, devices), so resuming in one process compiles once.
+  """
+  if n_devices == 1:
+    return jax.jit(functools.partial(train_step, config=config,
+                                     white_background=white_background), donate_argnums=0)
+  return jax.pmap(functools.partial(train_step, config=config, white_background=white_background,
+                                    axis_name="batch"), axis_name="batch", donate_argnums=0)
+
+
+def init_state(config: NerfConfig) -> state_lib.TrainState:
+  params = init_nerf_params(config, jax.random.PRNGKey(config.seed))
+  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
+                                               config.lr_decay_steps))
+  return state_lib.create_state(params, tx)
+
+
+# ----------------------------------------------------------------------------- the loop
+
+
+def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: str,
+          n_devices: Optional[int] = None, progress: bool = True,
+          callback: Optional[Callable[[int, Any], None]] = None) -> Dict[str, Any]:
+  """Trains (or resumes) a NeRF run in `run_dir`; returns a summary dict.
+
+  Checkpoints every config.checkpoint_every steps and at the end; re-running with the same
+  settings resumes from the latest complete checkpoint. A NaN/inf loss stops training with
+  a UserError naming the step; the last good checkpoint stays the latest one.
+  `callback(step, params)` runs after every checkpoint (benchmarks evaluate there); its
+  time is not counted in the summary's training seconds.
+  """
+  n_devices = n_devices or jax.local_device_count()
+  if config.batch_rays % n_devices:
+    raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
+  resumed = ckpt_lib.prepare_run_dir(run_dir, "nerf", {
+      "config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)})
+  state = init_state(config)
+  checkpoints = ckpt_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
+  start = 0
+  if resumed and checkpoints.latest_step() is not None:
+    state = state_lib.restore_state(
+        state, checkpoints.restore(state_lib.checkpoint_tree(state)))
+    start = int(state.step)
+  train_idx = scene.split("train")
+  images = jnp.asarray(scene.images[train_idx])
+  c2w = jnp.asarray(scene.c2w[train_idx])
+  K = jnp.asarray(scene.K)
+  step_fn = compile_train_step(config, scene.white_background, n_devices)
+  if n_devices > 1:
+    state = state_lib.replicate(state)
+  base_key = jax.random.PRNGKey(config.seed)
+  shape = (scene.height, scene.width, scene.focal)
+  t0 = time.time()
+  stats = {}
+  history = []
+  bar = tqdm(range(start, config.steps), initial=start, total=config.steps, desc="nerf train",
+             disable=not progress, dynamic_ncols=True)
+  try:
+    for step in bar:
+      key = jax.random.fold_in(base_key, step)  # per-step key: resuming replays the same batches
+      batch = sample_batch(key, images, c2w, K, config, step < config.precrop_steps, scene.ndc,
+                           shape, scene.near, scene.far)
+      if n_devices > 1:
+        batch = state_lib.shard(batch, n_devices)
+      state, stats = step_fn(state, batch)
+      loss = float(np.asarray(stats["loss"]).reshape(-1)[0])
+      if not np.isfinite(loss):
+        raise UserError(f"loss became {loss} at step {step + 1}; training stopped, the last "
+                        f"good checkpoint (step {checkpoints.latest_step()}) is kept")
+      done = step + 1
+      if done % 25 == 0 or done == config.steps:
+        psnr = float(np.asarray(stats["psnr"]).reshape(-1)[0])
+        bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}")
+        history.append({"step": done, "loss": loss, "psnr": psnr, "time": time.time() - t0})
+      if done % config.checkpoint_every == 0 or done == config.steps:
+        host = state_lib.unreplicate(state) if n_devices > 1 else state
+        checkpoints.save(done, state_lib.checkpoint_tree(host))
+        if callback is not None:
+          t_cb = time.time()
+          callback(done, host.params)
+          t0 += time.time() - t_cb
+  finally:
+    bar.close()
+    checkpoints.close()
+  _append_history(run_dir, history)
+  final = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in stats.items()}
+  return {"run_dir": run_dir, "steps": config.steps, "resumed_from": start,
+          "seconds": time.time() - t0, "devices": n_devices, **final}
+
+
+def _append_history(run_dir: str, history):
+  """Appends training curve points to run_dir/history.jsonl (one JSON object a line)."""
+  if not history:
+    return
+  with open(os.path.join(run_dir, "history.jsonl"), "a") as f:
+    for row in history:
+      f.write(json.dumps(row) + "\n")
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+def render_view(scene: Scene, params, config: NerfConfig, c2w: np.ndarray,
+                chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """Renders one camera of the scene: rgb [H, W, 3], depth, disparity, accumulation [H, W]."""
+  return render_lib.render_image(NerfField(config), params, scene.camera_rays(c2w), config,
+                                 scene.white_background, chunk)
+
+
+def evaluate(scene: Scene, params, config: NerfConfig, split: str = "val",
+             chunk: Optional[int] = None, progress: bool = True):
+  """PSNR/SSIM of the fine renders on a split. Returns (per-view list, mean dict, renders)."""
+  idx = scene.split(split)
+  rows, renders = [], []
+  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+    out = render_view(scene, params, config, scene.c2w[i], chunk)
+    target = scene.images[i]
+    rows.append({"view": os.path.basename(scene.image_paths[i]),
+                 "psnr": float(metrics.psnr(out["rgb"], target)),
+                 "ssim": float(metrics.ssim(out["rgb"], target))})
+    renders.append(out)
+  mean = {k: float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim")}
+  return rows, mean, renders

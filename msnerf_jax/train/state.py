@@ -1,0 +1,69 @@
+"""Shared training machinery: TrainState, optimizers with a freeze mask, device sharding."""
+
+from typing import Any, Callable, Optional
+
+import flax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax.training import train_state
+
+TrainState = train_state.TrainState
+
+
+def exponential_lr(lr_init: float, lr_final: float, decay_steps: int) -> optax.Schedule:
+  """lr_init * (lr_final / lr_init) ** (step / decay_steps) (the reference decay)."""
+  return optax.exponential_decay(lr_init, transition_steps=decay_steps,
+                                 decay_rate=lr_final / lr_init)
+
+
+def adam(schedule, frozen: Optional[Callable[[Any], Any]] = None) -> optax.GradientTransformation:
+  """Adam; leaves for which the `frozen(params)` mask is True get no update and no state.
+
+  `frozen` maps a params pytree to a pytree of booleans (True = frozen). Frozen leaves go
+  through optax.set_to_zero(), which keeps no optimizer state for them.
+  """
+  if frozen is None:
+    return optax.adam(schedule)
+  def labels(params):
+    return jax.tree_util.tree_map(lambda f: "frozen" if f else "train", frozen(params))
+  return optax.multi_transform({"train": optax.adam(schedule), "frozen": optax.set_to_zero()},
+                               labels)
+
+
+def create_state(params, tx: optax.GradientTransformation) -> TrainState:
+  return TrainState.create(apply_fn=None, params=params, tx=tx)
+
+
+def checkpoint_tree(state: TrainState):
+  """What a checkpoint holds of a TrainState."""
+  return {"step": state.step, "params": state.params, "opt_state": state.opt_state}
+
+
+def restore_state(state: TrainState, tree) -> TrainState:
+  return state.replace(step=tree["step"], params=tree["params"], opt_state=tree["opt_state"])
+
+
+def shard(batch, n_devices: int):
+  """Splits the leading (global batch) axis of every leaf into [n_devices, batch / n, ...]."""
+  return jax.tree_util.tree_map(
+      lambda x: x.reshape(n_devices, x.shape[0] // n_devices, *x.shape[1:]), batch)
+
+
+def replicate(tree, devices=None):
+  return flax.jax_utils.replicate(tree, devices)
+
+
+def unreplicate(tree):
+  return jax.tree_util.tree_map(lambda x: np.asarray(x[0]), tree)
+
+
+def is_finite(x) -> bool:
+  return bool(np.all(np.isfinite(np.asarray(x))))
+
+
+def tree_allclose(a, b, atol=0.0) -> bool:
+  leaves = jax.tree_util.tree_leaves(
+      jax.tree_util.tree_map(lambda x, y: jnp.max(jnp.abs(x - y)) <= atol, a, b))
+  return all(bool(v) for v in leaves)

@@ -1,0 +1,86 @@
+"""Writing what people look at: MP4/GIF videos, image grids, depth maps (atomic writes)."""
+
+import os
+import tempfile
+from typing import List, Optional, Sequence
+
+import imageio.v2 as imageio
+import numpy as np
+
+from msnerf_jax.data.images import to_uint8, write_image
+from msnerf_jax.errors import UserError
+
+
+def depth_to_image(depth: np.ndarray, accumulation: Optional[np.ndarray] = None,
+                   near: Optional[float] = None, far: Optional[float] = None) -> np.ndarray:
+  """Depth [H, W] -> grayscale RGB [H, W, 3] in [0, 1], near bright, far/empty dark."""
+  depth = np.asarray(depth, np.float32)
+  valid = np.ones_like(depth, bool) if accumulation is None else np.asarray(accumulation) > 0.5
+  if not valid.any():
+    return np.zeros((*depth.shape, 3), np.float32)
+  lo = np.percentile(depth[valid], 1) if near is None else near
+  hi = np.percentile(depth[valid], 99) if far is None else far
+  value = 1.0 - np.clip((depth - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+  value = np.where(valid, 0.15 + 0.85 * value, 0.0)
+  return np.repeat(value[..., None], 3, -1)
+
+
+def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[str]:
+  """Writes frames [H, W, 3] (float [0, 1] or uint8) as `path` (.mp4 or .gif) atomically.
+
+  Returns the list of written paths.
+  """
+  frames = [f if f.dtype == np.uint8 else to_uint8(f) for f in frames]
+  if not frames:
+    raise UserError(f"{path}: no frames to write")
+  ext = os.path.splitext(path)[1].lower()
+  folder = os.path.dirname(os.path.abspath(path))
+  os.makedirs(folder, exist_ok=True)
+  fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=ext)
+  os.close(fd)
+  try:
+    if ext == ".gif":
+      imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps, loop=0)
+    elif ext == ".mp4":
+      # Even sizes for yuv420p; macro_block_size=1 keeps odd sizes from being resized.
+      frames = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]
+      with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8,
+                              macro_block_size=1, pixelformat="yuv420p") as writer:
+        for f in frames:
+          writer.append_data(f)
+    else:
+      raise UserError(f"{path}: video must end in .mp4 or .gif")
+    os.replace(tmp, path)
+  finally:
+    if os.path.exists(tmp):
+      os.remove(tmp)
+  return [path]
+
+
+def write_videos(stem: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[str]:
+  """Writes stem.mp4 and stem.gif."""
+  return write_video(stem + ".mp4", frames, fps) + write_video(stem + ".gif", frames, fps)
+
+
+def grid(images: Sequence[Sequence[np.ndarray]], pad: int = 2) -> np.ndarray:
+  """Rows of equally sized images [h, w, 3] -> one image with `pad` white pixels between."""
+  rows = []
+  for row in images:
+    h = row[0].shape[0]
+    sep = np.ones((h, pad, 3), np.float32)
+    cells = []
+    for i, im in enumerate(row):
+      cells += ([sep] if i else []) + [np.asarray(im, np.float32)]
+    rows.append(np.concatenate(cells, 1))
+  width = max(r.shape[1] for r in rows)
+  out = []
+  for i, r in enumerate(rows):
+    if r.shape[1] < width:
+      r = np.concatenate([r, np.ones((r.shape[0], width - r.shape[1], 3), np.float32)], 1)
+    out += ([np.ones((pad, width, 3), np.float32)] if i else []) + [r]
+  return np.concatenate(out, 0)
+
+
+def write_grid(path: str, images: Sequence[Sequence[np.ndarray]], pad: int = 2) -> str:
+  write_image(path, grid(images, pad))
+  return path
