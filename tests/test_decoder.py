@@ -58,7 +58,7 @@ def _write_images(folder, n, rng, size=(40, 36)):
     image.save(os.path.join(folder, f"img{i}.{'jpg' if mode in ('RGB', 'L') else 'png'}"))
 
 
-TINY = config_lib.AdainConfig(size=16, resize=24, batch=2, steps=2, lr=1e-3, sample_every=2,
+TINY = config_lib.AdainConfig(size=32, resize=36, batch=2, steps=2, lr=1e-4, sample_every=2,
                               checkpoint_every=2, holdout_every=3)
 
 
@@ -77,7 +77,7 @@ def test_train_writes_checkpoints_samples_and_resumes(tmp_path, folders):
   assert result.step == 2 and np.isfinite(result.metrics["loss"])
   assert os.path.exists(os.path.join(run, "samples", "step_0000002.png"))
   grid = np.asarray(Image.open(os.path.join(run, "samples", "step_0000002.png")))
-  assert grid.shape == (2 * 16 + 4, 3 * 16 + 8, 3)
+  assert grid.shape == (2 * 32 + 4, 3 * 32 + 8, 3)
   held = open(os.path.join(run, "holdout.txt")).read().split()
   assert [os.path.basename(p) for p in held] == ["img2.png"]
   loaded = checkpoint.load_run(run)
@@ -120,7 +120,7 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, folders, monkey
 def test_training_reduces_loss():
   """A few Adam steps on one fixed batch lower the AdaIN loss (the gradient is right)."""
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
-  config = config_lib.AdainConfig(size=32, batch=2, lr=1e-4)
+  config = TINY
   enc = vgg.load_vgg_params()
   params = decoder.init_decoder(jax.random.PRNGKey(0))
   opt_state = train_adain.make_optimizer(config).init(params)

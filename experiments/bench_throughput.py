@@ -1,0 +1,110 @@
+"""Training and rendering throughput (rays/s) of both presets, and the MLP's FLOP rate
+against this machine's dense float32 matmul rate, all measured in one run.
+
+Usage:
+  python experiments/bench_throughput.py [--presets paper cpu] [--steps 5] [--render-rays 16384]
+
+Target (issue 2): the `paper` training step's MLP FLOP rate >= 70% of the matmul rate.
+MLP FLOPs per training step = 3 x (forward matmul FLOPs per sample) x samples, where the
+factor 3 counts the forward pass and the two backward matmuls (activations, weights).
+"""
+
+import argparse
+import os
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax.config import nerf_preset
+from msnerf_jax.models.nerf import mlp_flops_per_sample
+from msnerf_jax.render import render_image
+from msnerf_jax.train import nerf
+
+
+def timed(fn, repeats):
+  """Best-of and mean wall time of fn() after one warm-up call (compilation)."""
+  jax.block_until_ready(fn())
+  times = []
+  for _ in range(repeats):
+    t = time.perf_counter()
+    jax.block_until_ready(fn())
+    times.append(time.perf_counter() - t)
+  return min(times), float(np.mean(times))
+
+
+def matmul_rate(repeats=5):
+  """Dense float32 matmul FLOP/s: the best over a few large shapes."""
+  best = 0.0
+  for m, k, n in ((4096, 4096, 4096), (65536, 256, 256), (8192, 1024, 1024)):
+    a = jax.random.normal(jax.random.PRNGKey(0), (m, k), jnp.float32)
+    b = jax.random.normal(jax.random.PRNGKey(1), (k, n), jnp.float32)
+    f = jax.jit(jnp.matmul)
+    t, _ = timed(lambda: f(a, b), repeats)
+    best = max(best, 2 * m * k * n / t)
+  return best
+
+
+def synthetic_batch(config, key):
+  """A training batch of rays looking at the origin from radius 4 (the lego set-up)."""
+  b = config.batch_rays
+  k1, k2 = jax.random.split(key)
+  origins = jnp.tile(jnp.array([0.0, 0.0, 4.0]), (b, 1))
+  directions = jnp.array([0.0, 0.0, -1.0]) + 0.2 * jax.random.normal(k1, (b, 3))
+  from msnerf_jax.rays import ray_bundle  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.render import draw_randomness  # pylint: disable=g-import-not-at-top
+  return {"rays": ray_bundle(origins, directions, 2.0, 6.0),
+          "rgb": jax.random.uniform(k2, (b, 3)), "random": draw_randomness(key, b, config)}
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--presets", nargs="+", default=["paper", "cpu"])
+  parser.add_argument("--steps", type=int, default=5, help="timed training steps per preset")
+  parser.add_argument("--render-rays", type=int, default=16384)
+  args = parser.parse_args()
+
+  print(f"# {platform.machine()} {os.cpu_count()} cores, jax {jax.__version__}, "
+        f"devices {jax.devices()}")
+  peak = matmul_rate()
+  print(f"dense f32 matmul rate: {peak / 1e9:.1f} GFLOP/s")
+  for preset in args.presets:
+    config = nerf_preset(preset, "blender")
+    state = nerf.init_state(config)
+    step = nerf.compile_train_step(config, True, 1)
+    batch = synthetic_batch(config, jax.random.PRNGKey(0))
+    holder = {"state": state}
+
+    def run_step():
+      holder["state"], stats = step(holder["state"], batch)
+      return stats
+
+    best, mean = timed(run_step, args.steps)
+    samples = config.batch_rays * (2 * config.n_coarse + config.n_fine)
+    mlp_flops = 3 * mlp_flops_per_sample(config) * samples
+    params = holder["state"].params
+    rays = synthetic_batch(dataclass_replace(config, batch_rays=args.render_rays),
+                           jax.random.PRNGKey(1))["rays"]
+    field = nerf.NerfField(config)
+    render_best, _ = timed(lambda: render_image(field, params, rays, config, True)["rgb"], 2)
+    print(f"[{preset}] width {config.net_width} depth {config.net_depth}, "
+          f"{config.batch_rays} rays x ({config.n_coarse} + {config.n_coarse + config.n_fine}) "
+          f"samples per step")
+    print(f"[{preset}] train step: {best * 1e3:.0f} ms best, {mean * 1e3:.0f} ms mean -> "
+          f"{config.batch_rays / best:,.0f} rays/s")
+    print(f"[{preset}] MLP: {mlp_flops / 1e9:.1f} GFLOP per step, {mlp_flops / best / 1e9:.1f} "
+          f"GFLOP/s = {100 * mlp_flops / best / peak:.0f}% of the matmul rate")
+    print(f"[{preset}] render: {args.render_rays / render_best:,.0f} rays/s "
+          f"(chunk {config.render_chunk})")
+
+
+def dataclass_replace(config, **kw):
+  import dataclasses  # pylint: disable=g-import-not-at-top
+  return dataclasses.replace(config, **kw)
+
+
+if __name__ == "__main__":
+  main()

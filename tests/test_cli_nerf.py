@@ -1,0 +1,76 @@
+"""`msnerf nerf ...` end to end on the real lego scene, and one-line errors with exit code 2."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from msnerf_jax.cli import main
+
+
+def msnerf(*args, timeout=900):
+  return subprocess.run([sys.executable, "-m", "msnerf_jax", *args], capture_output=True,
+                        text=True, timeout=timeout)
+
+
+def assert_one_line_error(result, pattern):
+  assert result.returncode == 2, result.stdout + result.stderr
+  lines = [l for l in result.stderr.strip().splitlines() if l.strip()]
+  assert len(lines) == 1 and lines[0].startswith("msnerf: error:"), result.stderr
+  assert "Traceback" not in result.stderr
+  import re  # pylint: disable=g-import-not-at-top
+  assert re.search(pattern, lines[0]), lines[0]
+
+
+@pytest.mark.integration
+def test_train_eval_render_lego(lego, tmp_path):
+  run = str(tmp_path / "run")
+  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "4",
+             "--batch-rays", "256", "--checkpoint-every", "2")
+  assert r.returncode == 0, r.stderr[-3000:]
+  assert "NeRF training done" in r.stdout
+  assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
+  # Same command, more steps: resumes.
+  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "6",
+             "--batch-rays", "256", "--checkpoint-every", "2")
+  assert r.returncode == 0 and "resumed from 4" in r.stdout, r.stdout + r.stderr[-2000:]
+  # Another config into the same folder: refused, checkpoints kept.
+  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "6",
+             "--batch-rays", "512")
+  assert_one_line_error(r, "another config .*batch_rays")
+  r = msnerf("nerf", "eval", "--run", run)
+  assert r.returncode == 0, r.stderr[-3000:]
+  metrics = json.load(open(os.path.join(run, "eval_val", "metrics.json")))
+  assert len(metrics["views"]) == 9 and metrics["step"] == 6
+  assert 5 < metrics["mean"]["psnr"] < 40
+  r = msnerf("nerf", "render", "--run", run, "--out", str(tmp_path / "video"), "--frames", "3")
+  assert r.returncode == 0, r.stderr[-3000:]
+  for name in ("video.mp4", "video.gif", "video_depth.mp4", "video_depth.gif"):
+    assert os.path.getsize(tmp_path / name) > 1000
+
+
+def test_bad_inputs_exit_2(tmp_path, tiny_blender):
+  (tmp_path / "file").write_text("x")
+  cases = [
+      (["nerf", "train", "--data", str(tmp_path / "nope"), "--out", str(tmp_path / "r")],
+       "no such scene folder"),
+      (["nerf", "train", "--data", tiny_blender, "--out", str(tmp_path / "file")], "is a file"),
+      (["nerf", "eval", "--run", str(tmp_path / "file")], "is a file"),
+      (["nerf", "eval", "--run", str(tmp_path)], "run.json: missing"),
+      (["nerf", "train", "--data", str(tmp_path), "--out", str(tmp_path / "r")], "not a scene folder"),
+  ]
+  for argv, pattern in cases:
+    r = msnerf(*argv)
+    assert_one_line_error(r, pattern)
+
+
+def test_help_describes_every_option(capsys):
+  for argv in (["--help"], ["nerf", "train", "--help"], ["nerf", "eval", "--help"],
+               ["nerf", "render", "--help"]):
+    with pytest.raises(SystemExit) as e:
+      main(argv)
+    assert e.value.code == 0
+  out = capsys.readouterr().out
+  assert "--preset" in out and "default: cpu" in out and "--split" in out
