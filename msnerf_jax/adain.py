@@ -1,5 +1,6 @@
 """AdaIN: channel statistics, adaptive instance normalisation, style vectors and style blending."""
 
+import functools
 from typing import Any, Dict, Sequence, Tuple
 
 import chex
@@ -96,8 +97,10 @@ def blend_style_vectors(vectors: jnp.ndarray, weights: jnp.ndarray) -> jnp.ndarr
   return (weights / jnp.sum(weights)) @ vectors
 
 
+@functools.partial(jax.jit, static_argnames=("all_layers",))
 def encode(encoder_params: Any, images: jnp.ndarray, all_layers: bool = False) -> Dict[str, jnp.ndarray]:
-  """VGG features of images [B, H, W, 3] in [0, 1]: dict relu1_1 ... relu4_1."""
+  """VGG features of images [B, H, W, 3] in [0, 1]: dict relu1_1 ... relu4_1 (jitted; inlined
+  when called inside another jit)."""
   return vgg.VGGEncoder().apply(encoder_params, images, all_layers=all_layers)
 
 

