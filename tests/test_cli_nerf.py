@@ -27,28 +27,35 @@ def assert_one_line_error(result, pattern):
 @pytest.mark.integration
 def test_train_eval_render_lego(lego, tmp_path):
   run = str(tmp_path / "run")
-  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "4",
-             "--batch-rays", "256", "--checkpoint-every", "2")
+  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "2",
+             "--batch-rays", "256")
   assert r.returncode == 0, r.stderr[-3000:]
   assert "NeRF training done" in r.stdout
-  assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
-  # Same command, more steps: resumes.
-  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "6",
-             "--batch-rays", "256", "--checkpoint-every", "2")
-  assert r.returncode == 0 and "resumed from 4" in r.stdout, r.stdout + r.stderr[-2000:]
-  # Another config into the same folder: refused, checkpoints kept.
-  r = msnerf("nerf", "train", "--data", lego, "--out", run, "--downscale", "16", "--steps", "6",
-             "--batch-rays", "512")
-  assert_one_line_error(r, "another config .*batch_rays")
+  assert os.listdir(os.path.join(run, "checkpoints")) == ["2"]
   r = msnerf("nerf", "eval", "--run", run)
   assert r.returncode == 0, r.stderr[-3000:]
   metrics = json.load(open(os.path.join(run, "eval_val", "metrics.json")))
-  assert len(metrics["views"]) == 9 and metrics["step"] == 6
-  assert 5 < metrics["mean"]["psnr"] < 40
-  r = msnerf("nerf", "render", "--run", run, "--out", str(tmp_path / "video"), "--frames", "3")
+  assert len(metrics["views"]) == 9 and metrics["step"] == 2
+  assert 3 < metrics["mean"]["psnr"] < 40
+  assert len([f for f in os.listdir(os.path.join(run, "eval_val")) if f.endswith(".png")]) == 9
+  r = msnerf("nerf", "render", "--run", run, "--out", str(tmp_path / "video"), "--frames", "2")
   assert r.returncode == 0, r.stderr[-3000:]
   for name in ("video.mp4", "video.gif", "video_depth.mp4", "video_depth.gif"):
-    assert os.path.getsize(tmp_path / name) > 1000
+    assert os.path.getsize(tmp_path / name) > 500
+
+
+def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
+  run = str(tmp_path / "run")
+  common = ["nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "64",
+            "--checkpoint-every", "2"]
+  r = msnerf(*common, "--steps", "2")
+  assert r.returncode == 0, r.stderr[-3000:]
+  r = msnerf(*common, "--steps", "4")  # same command, more steps: resumes
+  assert r.returncode == 0 and "resumed from 2" in r.stdout, r.stdout + r.stderr[-2000:]
+  assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "128")
+  assert_one_line_error(r, "another config .*batch_rays")
+  assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
 
 
 def test_bad_inputs_exit_2(tmp_path, tiny_blender):

@@ -83,10 +83,7 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
       if pose.shape != (4, 4) and pose.shape != (3, 4):
         raise UserError(f"{tpath}: frame {i} transform_matrix has shape {pose.shape}, "
                         "expected 4x4")
-      rgba = images_lib.read_image(image_path, keep_alpha=True)
-      if downscale > 1:
-        h, w = rgba.shape[0] // downscale, rgba.shape[1] // downscale
-        rgba = images_lib.resize(rgba, h, w)
+      rgba = images_lib.read_image(image_path, keep_alpha=True, reduce=downscale)
       rgb = rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])  # white background
       all_images.append(rgb.astype(np.float32))
       all_poses.append(pose[:3, :4])

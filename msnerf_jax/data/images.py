@@ -46,14 +46,16 @@ def _to_float(array: np.ndarray) -> np.ndarray:
 def read_image(path: str,
                background: Optional[float] = 1.0,
                max_side: Optional[int] = None,
-               keep_alpha: bool = False) -> np.ndarray:
+               keep_alpha: bool = False,
+               reduce: int = 1) -> np.ndarray:
   """Reads an image file as float32 RGB in [0, 1].
 
   Grayscale is replicated to RGB, palette images are expanded, 16-bit images are scaled by
   1/65535. An alpha channel is composited over a constant `background` (Blender convention
   `rgb * a + bg * (1 - a)`), or kept as a fourth channel when `keep_alpha`. With `max_side`,
   images larger than that are downscaled while decoding (JPEG draft mode), so huge files
-  do not need their full-resolution buffer.
+  do not need their full-resolution buffer. `reduce` > 1 shrinks by that integer factor
+  with box (area) averaging of the stored pixels, before any alpha compositing.
 
   Returns:
     [height, width, 3] (or [height, width, 4] with keep_alpha) float32.
@@ -75,6 +77,11 @@ def read_image(path: str,
           image.draft("RGB", (max_side, max_side))  # JPEG: decode at 1/2, 1/4, 1/8 scale.
         image.load()
         image = _normalize_mode(image)
+        if reduce > 1:
+          if image.size[0] < reduce or image.size[1] < reduce:
+            raise UserError(f"{path}: {image.size[0]}x{image.size[1]} is too small to downscale "
+                            f"by {reduce}")
+          image = image.reduce(reduce)
         if max_side is not None and max(image.size) > max_side:
           scale = max_side / max(image.size)
           size = (max(1, round(image.size[0] * scale)), max(1, round(image.size[1] * scale)))

@@ -149,6 +149,13 @@ def make_optimizer(config: config_lib.AdainConfig) -> optax.GradientTransformati
   return optax.adam(schedule)
 
 
+def step_config(config: config_lib.AdainConfig) -> config_lib.AdainConfig:
+  """`config` with only the fields the jitted step reads (losses, optimizer, upsampling) kept,
+  so runs that differ in steps, sizes or bookkeeping share one compiled step."""
+  return dataclasses.replace(config, steps=1, size=0, resize=0, batch=0, holdout_every=0, seed=0,
+                             sample_every=1, checkpoint_every=1, keep_checkpoints=1)
+
+
 @functools.lru_cache(maxsize=8)
 def make_train_step(config: config_lib.AdainConfig):
   """jitted (params, opt_state, encoder_params, content, style) -> (params, opt_state, metrics).
@@ -262,7 +269,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     log(f"{run_dir}: already trained to step {start} (>= --steps {config.steps})")
     return TrainResult(run_dir, start, {}, 0.0, 0.0)
 
-  train_step = make_train_step(config)
+  train_step = make_train_step(step_config(config))
   stylize = make_stylize_fn(config.upsample)
   sample_rng = np.random.default_rng([config.seed, 10**9])
   n_samples = min(4, config.batch)
