@@ -69,20 +69,22 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         steps=200_000,
         checkpoint_every=5000)
   else:
+    # 4x64 MLP, 16 + 32 samples: about 0.3 s per 1024-ray step on 2 cores (lego 100x100).
     config = NerfConfig(
-        net_depth=6,
-        net_width=128,
-        skip_layer=3,
-        n_coarse=32,
-        n_fine=64,
-        batch_rays=2048,
+        net_depth=4,
+        net_width=64,
+        skip_layer=2,
+        n_coarse=16,
+        n_fine=32,
+        batch_rays=1024,
         lr_init=2e-3,
         lr_final=1e-4,
-        lr_decay_steps=12_000,
+        lr_decay_steps=10_000,
         precrop_steps=0 if llff else 200,
         raw_noise_std=1.0 if llff else 0.0,
         steps=6000,
-        checkpoint_every=500)
+        checkpoint_every=500,
+        mlp_chunk=2048)
   return dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
 
 
