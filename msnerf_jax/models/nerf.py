@@ -47,28 +47,28 @@ class NerfTrunk(nn.Module):
 class NerfMLP(nn.Module):
   """Trunk + the final colour layer `rgb` (W/2 -> 3, sigmoid).
 
-  Params: {"trunk": {...}, "rgb": {...}}.
+  Params: {"trunk": {...}, "rgb": {...}} (the submodule takes its attribute's name).
   """
-  depth: int = 8
-  width: int = 256
-  skip_layer: int = 4
-  pos_freqs: int = 10
-  dir_freqs: int = 4
+  trunk: NerfTrunk
 
   @nn.compact
   def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray
                ) -> Tuple[jnp.ndarray, jnp.ndarray]:
     """Args: points [..., 3], viewdirs [..., 3]. Returns rgb [..., 3] in [0, 1], raw sigma [...]."""
-    out = NerfTrunk(self.depth, self.width, self.skip_layer, self.pos_freqs,
-                    self.dir_freqs, name="trunk")(points, viewdirs)
+    out = self.trunk(points, viewdirs)
     rgb = nn.sigmoid(nn.Dense(3, name="rgb")(out["view_features"]))
     return rgb, out["sigma"]
 
 
+def nerf_trunk(config) -> NerfTrunk:
+  """The trunk of a NerfConfig (what a multi-style model freezes)."""
+  return NerfTrunk(config.net_depth, config.net_width, config.skip_layer, config.pos_freqs,
+                   config.dir_freqs)
+
+
 def nerf_mlp(config) -> NerfMLP:
   """The MLP of a NerfConfig."""
-  return NerfMLP(config.net_depth, config.net_width, config.skip_layer, config.pos_freqs,
-                 config.dir_freqs)
+  return NerfMLP(trunk=nerf_trunk(config))
 
 
 def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:
