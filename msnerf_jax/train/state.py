@@ -4,7 +4,6 @@ from typing import Any, Callable, Optional
 
 import flax
 import jax
-import jax.numpy as jnp
 import numpy as np
 import optax
 from flax.training import train_state
@@ -58,12 +57,3 @@ def replicate(tree, devices=None):
 def unreplicate(tree):
   return jax.tree_util.tree_map(lambda x: np.asarray(x[0]), tree)
 
-
-def is_finite(x) -> bool:
-  return bool(np.all(np.isfinite(np.asarray(x))))
-
-
-def tree_allclose(a, b, atol=0.0) -> bool:
-  leaves = jax.tree_util.tree_leaves(
-      jax.tree_util.tree_map(lambda x, y: jnp.max(jnp.abs(x - y)) <= atol, a, b))
-  return all(bool(v) for v in leaves)
