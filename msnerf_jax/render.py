@@ -112,37 +112,133 @@ def render_rays(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
   return {"coarse": coarse, "fine": fine}
 
 
+def _styled_field_in_chunks(field, params, points, viewdirs, codes, chunk: int):
+  """A style field over points [R, S, 3] (shared) or [M, R, S, 3] (per style), in chunks of
+  whole rays. Returns rgb [M, R, S, 3] and raw sigma [R, S] or [M, R, S]."""
+  per_style = points.ndim == 4
+  n_styles = jax.tree_util.tree_leaves(codes)[0].shape[0]
+
+  def rays_first(p, x, d):  # apply_in_chunks splits the leading (ray) axis.
+    if per_style:
+      x = jnp.moveaxis(x, 0, 1)
+    rgb, sigma = field(p, x, d, codes)
+    return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
+
+  if per_style:
+    points = jnp.moveaxis(points, 0, 1)
+  # The trunk runs once per sample, the heads once per (sample, style): scale the chunk down.
+  rgb, sigma = apply_in_chunks(rays_first, params, points, viewdirs,
+                               max(1, chunk // (n_styles if per_style else 1)))
+  return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
+
+
+def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.ndarray,
+                       config, randomness: Optional[Dict[str, jnp.ndarray]] = None,
+                       white_background: bool = False) -> Dict[str, Dict[str, jnp.ndarray]]:
+  """Hierarchical volume sampling of the same rays in M styles at once.
+
+  The style heads run once per style (`field.codes`). With a frozen density (standard
+  variant) the weights do not depend on the style, so all styles share the coarse and fine
+  samples and one trunk evaluation per sample. A density-aware field returns a density per
+  style; then each style draws its own fine samples and the fine trunk runs per style.
+
+  Args:
+    field: a style field: `field.codes(params, styles)` and
+      `field(params, points, viewdirs, codes) -> (rgb [M, ..., 3], raw sigma)`.
+    params: {"coarse": ..., "fine": ...}.
+    rays: ray_bundle dict, leading shape [R].
+    styles: [M, style_dim] style vectors.
+    config: the NerfConfig with the sampling settings.
+  Returns:
+    {"coarse": outputs, "fine": outputs}, volume_render's outputs with a leading [M].
+  """
+  randomness = randomness or {}
+  chex.assert_rank([rays["origins"], styles], 2)
+  n_styles = styles.shape[0]
+
+  def composite_styles(rgb, raw_sigma, z_vals, noise):
+    shape = rgb.shape[:-1]  # [M, R, S]
+    if noise is not None:
+      raw_sigma = raw_sigma + noise
+    return volume_render(rgb, jax.nn.relu(jnp.broadcast_to(raw_sigma, shape)),
+                         jnp.broadcast_to(z_vals, shape),
+                         jnp.broadcast_to(rays["directions"], (*shape[:2], 3)), white_background)
+
+  z_coarse = sampling.stratified_samples(rays["near"], rays["far"], config.n_coarse,
+                                         u=randomness.get("u_coarse"), lindisp=config.lindisp)
+  points, viewdirs = points_along(rays, z_coarse)
+  codes = field.codes(params["coarse"], styles)
+  rgb, raw_sigma = _styled_field_in_chunks(field, params["coarse"], points, viewdirs, codes,
+                                           config.mlp_chunk)
+  coarse = composite_styles(rgb, raw_sigma, z_coarse, randomness.get("noise_coarse"))
+
+  shared = raw_sigma.ndim == 2  # the density does not depend on the style.
+  weights = coarse["weights"][0] if shared else coarse["weights"]  # [R, S] or [M, R, S]
+  mids = 0.5 * (z_coarse[..., 1:] + z_coarse[..., :-1])
+  u_fine = randomness.get("u_fine")
+  if not shared:
+    mids = jnp.broadcast_to(mids, (n_styles, *mids.shape))
+    u_fine = None if u_fine is None else jnp.broadcast_to(u_fine, (n_styles, *u_fine.shape))
+  z_fine = sampling.sample_pdf(mids, jax.lax.stop_gradient(weights[..., 1:-1]), config.n_fine,
+                               u=u_fine)
+  z_all = jnp.sort(jnp.concatenate(
+      [jnp.broadcast_to(z_coarse, z_fine.shape[:-1] + z_coarse.shape[-1:]),
+       jax.lax.stop_gradient(z_fine)], -1), -1)
+  if shared:
+    points, viewdirs = points_along(rays, z_all)
+  else:
+    points = rays["origins"][:, None, :] + rays["directions"][:, None, :] * z_all[..., None]
+  codes = field.codes(params["fine"], styles)
+  rgb, raw_sigma = _styled_field_in_chunks(field, params["fine"], points, viewdirs, codes,
+                                           config.mlp_chunk)
+  fine = composite_styles(rgb, raw_sigma, z_all, randomness.get("noise_fine"))
+  return {"coarse": coarse, "fine": fine}
+
+
 IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
 
 
 @functools.partial(jax.jit, static_argnums=(0, 2, 3))
-def _render_chunk(field_fn, params, config, white_background, rays):
-  out = render_rays(field_fn, params, rays, config, None, white_background)["fine"]
+def _render_chunk(field_fn, params, config, white_background, rays, styles=None):
+  if styles is None:
+    out = render_rays(field_fn, params, rays, config, None, white_background)["fine"]
+  else:
+    out = render_rays_styles(field_fn, params, rays, styles, config, None,
+                             white_background)["fine"]
   return {k: out[k] for k in IMAGE_OUTPUTS}
 
 
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
-                 white_background: bool = False, chunk: Optional[int] = None
-                 ) -> Dict[str, np.ndarray]:
+                 white_background: bool = False, chunk: Optional[int] = None,
+                 styles: Optional[jnp.ndarray] = None) -> Dict[str, np.ndarray]:
   """Renders rays of any leading shape (an image [H, W]) chunk by chunk, deterministically.
 
   Each jitted call sees exactly `chunk` rays (the last chunk is padded), so peak memory
   depends on the chunk size, not on the image size, and there is one compilation.
+  With `styles` [M, style_dim] and a style field, renders all M styles in each call (a style
+  sweep: the trunk runs once per sample for all of them, see render_rays_styles).
 
   Returns:
-    numpy dict of rgb [..., 3], depth, disparity, accumulation [...] (fine network).
+    numpy dict of rgb [..., 3], depth, disparity, accumulation [...] (fine network), each
+    with a leading [M] when `styles` is given.
   """
   chunk = chunk or config.render_chunk
   shape = rays["origins"].shape[:-1]
   flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
   n = flat["origins"].shape[0]
+  axis = 0 if styles is None else 1  # where the ray axis of the outputs is.
   outputs = {k: [] for k in IMAGE_OUTPUTS}
   for start in range(0, n, chunk):
     piece = {k: v[start:start + chunk] for k, v in flat.items()}
     size = piece["origins"].shape[0]
     if size < chunk:  # pad with copies of the first ray: same shapes, one compilation.
       piece = {k: np.concatenate([v, np.repeat(v[:1], chunk - size, 0)]) for k, v in piece.items()}
-    out = _render_chunk(field_fn, params, config, white_background, piece)
+    out = _render_chunk(field_fn, params, config, white_background, piece, styles)
     for k in IMAGE_OUTPUTS:
-      outputs[k].append(np.asarray(out[k])[:size])
-  return {k: np.concatenate(v).reshape(*shape, *v[0].shape[1:]) for k, v in outputs.items()}
+      outputs[k].append(np.take(np.asarray(out[k]), np.arange(size), axis=axis))
+  result = {}
+  for k, v in outputs.items():
+    joined = np.concatenate(v, axis=axis)
+    lead = joined.shape[:axis]
+    result[k] = joined.reshape(*lead, *shape, *joined.shape[axis + 1:])
+  return result

@@ -16,6 +16,7 @@ class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescription
 def build_parser() -> argparse.ArgumentParser:
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli import adain as adain_cli
+  from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
   parser = argparse.ArgumentParser(
       prog="msnerf", formatter_class=_Formatter,
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
   commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
   nerf_cli.register(commands, _Formatter)
   adain_cli.register(commands, _Formatter)
+  multistyle_cli.register(commands, _Formatter)
   return parser
 
 

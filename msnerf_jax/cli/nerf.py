@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
+from msnerf_jax.cli.common import output_stem, path_poses, print_summary
 from msnerf_jax.errors import UserError
 
 
@@ -56,13 +57,6 @@ def register(commands, formatter):
   p.set_defaults(func=cmd_render)
 
 
-def _print_summary(title, items):
-  print(f"\n{title}")
-  width = max(len(k) for k, _ in items)
-  for k, v in items:
-    print(f"  {k:<{width}}  {v}")
-
-
 def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.scene import load_scene
@@ -79,7 +73,7 @@ def cmd_train(args):
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; preset {args.preset}")
   summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices)
-  _print_summary("NeRF training done", [
+  print_summary("NeRF training done", [
       ("run", summary["run_dir"]),
       ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
       ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
@@ -117,7 +111,7 @@ def cmd_eval(args):
   print(f"{'view':<24} {'PSNR':>7} {'SSIM':>7}")
   for row in rows:
     print(f"{row['view']:<24} {row['psnr']:7.2f} {row['ssim']:7.4f}")
-  _print_summary(f"NeRF eval on {args.split} (step {run.step})", [
+  print_summary(f"NeRF eval on {args.split} (step {run.step})", [
       ("mean PSNR", f"{mean['psnr']:.2f} dB"), ("mean SSIM", f"{mean['ssim']:.4f}"),
       ("time", f"{time.time() - t0:.1f} s"), ("renders", out_dir)])
 
@@ -128,10 +122,8 @@ def cmd_render(args):
   from msnerf_jax import video
   from msnerf_jax.train import nerf
   run, scene = _load(args.run)
-  poses = scene.render_poses
-  if args.frames > 0:
-    poses = poses[np.linspace(0, len(poses) - 1, args.frames).round().astype(int)]
-  stem = os.path.splitext(args.out)[0] if args.out.endswith((".mp4", ".gif")) else args.out
+  poses = path_poses(scene, args.frames)
+  stem = output_stem(args.out)
   t0 = time.time()
   frames, depths = [], []
   for c2w in tqdm(poses, desc="rendering", dynamic_ncols=True):
@@ -146,7 +138,7 @@ def cmd_render(args):
   written = video.write_videos(stem, frames, args.fps)
   written += video.write_videos(stem + "_depth", depth_frames, args.fps)
   seconds = time.time() - t0
-  _print_summary("NeRF render done", [
+  print_summary("NeRF render done", [
       ("frames", f"{len(frames)} of {scene.width}x{scene.height}"),
       ("time", f"{seconds:.1f} s ({len(frames) / seconds:.2f} frames/s)"),
       ("written", ", ".join(written))])

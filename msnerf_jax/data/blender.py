@@ -58,7 +58,7 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
   """
   if downscale < 1:
     raise UserError(f"--downscale {downscale}: must be >= 1")
-  all_images, all_poses, paths, splits = [], [], [], {}
+  all_images, all_alphas, all_poses, paths, splits = [], [], [], [], {}
   angle = None
   for split in SPLITS:
     tpath = os.path.join(path, f"transforms_{split}.json")
@@ -86,6 +86,7 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
       rgba = images_lib.read_image(image_path, keep_alpha=True, reduce=downscale)
       rgb = rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])  # white background
       all_images.append(rgb.astype(np.float32))
+      all_alphas.append(np.round(rgba[..., 3] * 255).astype(np.uint8))
       all_poses.append(pose[:3, :4])
       paths.append(image_path)
     splits[split] = np.arange(start, len(all_images))
@@ -103,4 +104,5 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
                            for a in np.linspace(-180, 180, 41)[:-1]]).astype(np.float32)
   return Scene(images=images, c2w=poses, K=K, near=NEAR, far=FAR, ndc=False,
                white_background=True, splits=splits, render_poses=render_poses,
-               format="blender", image_paths=tuple(paths))
+               format="blender", image_paths=tuple(paths),
+               alphas=images_lib.stack_same_size(all_alphas, paths))

@@ -2,7 +2,7 @@
 
 import dataclasses
 import os
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -17,7 +17,8 @@ class Scene:
   """A loaded scene. Arrays are numpy on the host.
 
   images: [N, H, W, 3] float32 in [0, 1]; c2w: [N, 3, 4] camera-to-world (OpenGL axes);
-  K: [3, 3]; splits: name -> indices into images; render_poses: [P, 3, 4] a camera path.
+  K: [3, 3]; splits: name -> indices into images; render_poses: [P, 3, 4] a camera path;
+  alphas: [N, H, W] uint8 opacity of RGBA images (Blender), None when the photos have none.
   """
   images: np.ndarray
   c2w: np.ndarray
@@ -30,6 +31,7 @@ class Scene:
   render_poses: np.ndarray
   format: str
   image_paths: Tuple[str, ...]
+  alphas: Optional[np.ndarray] = None
 
   @property
   def height(self) -> int:

@@ -2,9 +2,7 @@
 
 import dataclasses
 import functools
-import json
 import os
-import time
 from typing import Any, Callable, Dict, Optional
 
 import jax
@@ -21,6 +19,7 @@ from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models.nerf import init_nerf_params, nerf_mlp
+from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
 
@@ -97,11 +96,8 @@ def compile_train_step(config: NerfConfig, white_background: bool, n_devices: in
 
   Cached per (config, background, devices), so resuming in one process compiles once.
   """
-  if n_devices == 1:
-    return jax.jit(functools.partial(train_step, config=config,
-                                     white_background=white_background), donate_argnums=0)
-  return jax.pmap(functools.partial(train_step, config=config, white_background=white_background,
-                                    axis_name="batch"), axis_name="batch", donate_argnums=0)
+  return loop_lib.compile_step(functools.partial(train_step, config=config,
+                                                 white_background=white_background), n_devices)
 
 
 def init_state(config: NerfConfig) -> state_lib.TrainState:
@@ -128,69 +124,25 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   n_devices = n_devices or jax.local_device_count()
   if config.batch_rays % n_devices:
     raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
-  resumed = ckpt_lib.prepare_run_dir(run_dir, "nerf", {
+  ckpt_lib.prepare_run_dir(run_dir, "nerf", {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)})
-  state = init_state(config)
-  checkpoints = ckpt_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
-  start = 0
-  if resumed and checkpoints.latest_step() is not None:
-    state = state_lib.restore_state(
-        state, checkpoints.restore(state_lib.checkpoint_tree(state)))
-    start = int(state.step)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
   c2w = jnp.asarray(scene.c2w[train_idx])
   K = jnp.asarray(scene.K)
-  step_fn = compile_train_step(config, scene.white_background, n_devices)
-  if n_devices > 1:
-    state = state_lib.replicate(state)
   base_key = jax.random.PRNGKey(config.seed)
   shape = (scene.height, scene.width, scene.focal)
-  t0 = time.time()
-  stats = {}
-  history = []
-  bar = tqdm(range(start, config.steps), initial=start, total=config.steps, desc="nerf train",
-             disable=not progress, dynamic_ncols=True)
-  try:
-    for step in bar:
-      key = jax.random.fold_in(base_key, step)  # per-step key: resuming replays the same batches
-      batch = sample_batch(key, images, c2w, K, config, step < config.precrop_steps, scene.ndc,
-                           shape, scene.near, scene.far)
-      if n_devices > 1:
-        batch = state_lib.shard(batch, n_devices)
-      state, stats = step_fn(state, batch)
-      loss = float(np.asarray(stats["loss"]).reshape(-1)[0])
-      if not np.isfinite(loss):
-        raise UserError(f"loss became {loss} at step {step + 1}; training stopped, the last "
-                        f"good checkpoint (step {checkpoints.latest_step()}) is kept")
-      done = step + 1
-      if done % 25 == 0 or done == config.steps:
-        psnr = float(np.asarray(stats["psnr"]).reshape(-1)[0])
-        bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}")
-        history.append({"step": done, "loss": loss, "psnr": psnr, "time": time.time() - t0})
-      if done % config.checkpoint_every == 0 or done == config.steps:
-        host = state_lib.unreplicate(state) if n_devices > 1 else state
-        checkpoints.save(done, state_lib.checkpoint_tree(host))
-        if callback is not None:
-          t_cb = time.time()
-          callback(done, host.params)
-          t0 += time.time() - t_cb
-  finally:
-    bar.close()
-    checkpoints.close()
-  _append_history(run_dir, history)
-  final = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in stats.items()}
-  return {"run_dir": run_dir, "steps": config.steps, "resumed_from": start,
-          "seconds": time.time() - t0, "devices": n_devices, **final}
 
+  def batch_fn(step):  # per-step key: resuming replays the same batches.
+    return sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config,
+                        step < config.precrop_steps, scene.ndc, shape, scene.near, scene.far)
 
-def _append_history(run_dir: str, history):
-  """Appends training curve points to run_dir/history.jsonl (one JSON object a line)."""
-  if not history:
-    return
-  with open(os.path.join(run_dir, "history.jsonl"), "a") as f:
-    for row in history:
-      f.write(json.dumps(row) + "\n")
+  return loop_lib.fit(init_state(config), compile_train_step(config, scene.white_background,
+                                                             n_devices),
+                      batch_fn, run_dir=run_dir, steps=config.steps,
+                      checkpoint_every=config.checkpoint_every,
+                      keep_checkpoints=config.keep_checkpoints, n_devices=n_devices,
+                      desc="nerf train", progress=progress, callback=callback)
 
 
 # ----------------------------------------------------------------------------- evaluation

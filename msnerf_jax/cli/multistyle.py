@@ -1,0 +1,280 @@
+"""`msnerf stylize-scene`, `msnerf multistyle train|eval` and `msnerf render`: the 3D style stage."""
+
+import json
+import os
+import time
+
+import numpy as np
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.cli.common import output_stem, path_poses, print_summary
+from msnerf_jax.errors import UserError
+
+_DEFAULTS = config_lib.MultistyleConfig()
+
+
+def register(commands, formatter):
+  p = commands.add_parser(
+      "stylize-scene", formatter_class=formatter,
+      help="stylize every view of a scene with each style (the multi-style training set)",
+      description="Stylizes every view (all splits) of a Blender or LLFF scene with each style "
+                  "image by AdaIN, and writes per style the images and the 1024-d style vector, "
+                  "plus a manifest. An interrupted run continues where it stopped.",
+      epilog="example: msnerf stylize-scene --data lego --downscale 8 --decoder runs/adain "
+             "--styles a.jpg b.jpg --include-original --out runs/lego_styles")
+  p.add_argument("--data", required=True, help="scene folder (Blender or LLFF, auto-detected)")
+  p.add_argument("--decoder", required=True, help="AdaIN run folder (`msnerf adain train`)")
+  p.add_argument("--styles", nargs="+", required=True, metavar="IMG", help="style images")
+  p.add_argument("--alphas", nargs="+", type=float, default=None, metavar="A",
+                 help="style strength per style image in [0, 1] (default 1 for all)")
+  p.add_argument("--include-original", action="store_true",
+                 help="add the unstylized views as a style named 'original' (strength control)")
+  p.add_argument("--downscale", type=int, default=0,
+                 help="image downscale factor, as for `msnerf nerf train` (0 = Blender 1, LLFF 8)")
+  p.add_argument("--out", required=True, help="dataset folder")
+  p.set_defaults(func=cmd_stylize_scene)
+
+  ms = commands.add_parser("multistyle", formatter_class=formatter,
+                           help="train and evaluate a multi-style NeRF",
+                           description="Style heads on the frozen trunk of a trained NeRF.")
+  verbs = ms.add_subparsers(dest="verb", metavar="VERB", required=True)
+  p = verbs.add_parser(
+      "train", formatter_class=formatter,
+      help="train a multi-style NeRF (re-run the same command to resume)",
+      description="Copies the trunk of a NeRF run (frozen: no gradient, no optimizer state) "
+                  "and trains new style-conditioned heads on a stylized dataset; every sampled "
+                  "pixel is supervised in every style with one trunk evaluation.")
+  p.add_argument("--nerf", required=True, help="NeRF run folder (`msnerf nerf train`)")
+  p.add_argument("--stylized", required=True, help="dataset folder (`msnerf stylize-scene`)")
+  p.add_argument("--out", required=True, help="run folder")
+  p.add_argument("--density-aware", action="store_true",
+                 help="also learn a style-conditioned density head (per-style geometry)")
+  p.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="training steps")
+  p.add_argument("--batch-rays", type=int, default=_DEFAULTS.batch_rays,
+                 help="pixels per step (each supervised in every style)")
+  p.add_argument("--lr", type=float, default=_DEFAULTS.lr_init,
+                 help=f"initial learning rate (decays exponentially to lr/10 at step "
+                      f"{_DEFAULTS.lr_decay_steps})")
+  p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
+                 help="steps between checkpoints")
+  p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
+  p.add_argument("--devices", type=int, default=None,
+                 help="local devices to train on (default: all; gradients are averaged)")
+  p.set_defaults(func=cmd_train)
+
+  p = verbs.add_parser("eval", formatter_class=formatter,
+                       help="per-style PSNR/SSIM on held-out stylized views",
+                       description="Renders the held-out views in every training style and "
+                                   "compares them with the stylized images.")
+  p.add_argument("--run", required=True, help="multi-style run folder")
+  p.add_argument("--split", default="val", choices=("train", "val", "test"), help="which views")
+  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  p.set_defaults(func=cmd_eval)
+
+  p = commands.add_parser(
+      "render", formatter_class=formatter,
+      help="videos and an interpolation grid of a run along its render path",
+      description="For a multi-style run, writes OUT.mp4/.gif in one style, OUT_morph.mp4/.gif "
+                  "whose style moves from A to B along the path, and OUT_grid.png (interpolation "
+                  "steps x views). A STYLE is a training style's name or any image file (its "
+                  "style vector is computed, so styles never trained on work too). For a NeRF "
+                  "run, same as `msnerf nerf render`.",
+      epilog="examples: msnerf render --run runs/ms --out runs/ms/video --style starry_night\n"
+             "  msnerf render --run runs/ms --out v --interp starry_night scream --t 0.3\n"
+             "  msnerf render --run runs/ms --out v --style scream --strength 0.5")
+  p.add_argument("--run", required=True, help="run folder (multi-style, or NeRF)")
+  p.add_argument("--out", required=True, help="output file stem")
+  p.add_argument("--style", default=None, metavar="STYLE",
+                 help="style of the main video (default: the first training style)")
+  p.add_argument("--interp", nargs=2, default=None, metavar=("A", "B"),
+                 help="main video in the blend (1 - t) A + t B of two styles")
+  p.add_argument("--t", type=float, default=0.5, help="blend weight of B for --interp")
+  p.add_argument("--strength", type=float, default=None,
+                 help="main video at this strength between the original scene (0) and the "
+                      "style (1); needs a run trained with --include-original")
+  p.add_argument("--morph", nargs=2, default=None, metavar=("A", "B"),
+                 help="styles of the morph video and the grid (default: the first two)")
+  p.add_argument("--grid-steps", type=int, default=5, help="interpolation steps in the grid")
+  p.add_argument("--grid-views", type=int, default=3, help="views (rows) in the grid")
+  p.add_argument("--frames", type=int, default=0, help="number of frames (0 = whole path)")
+  p.add_argument("--fps", type=int, default=24, help="frames per second")
+  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  p.set_defaults(func=cmd_render)
+
+
+def cmd_stylize_scene(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import stylize as stylize_lib
+  from msnerf_jax.data import stylized as stylized_lib
+  from msnerf_jax.data.scene import load_scene
+  from msnerf_jax.models import vgg
+  alphas = args.alphas if args.alphas is not None else [1.0] * len(args.styles)
+  decoder = stylize_lib.load_decoder(args.decoder)
+  scene, data = load_scene(config_lib.DataConfig(path=os.path.abspath(args.data),
+                                                 downscale=args.downscale))
+  encoder = vgg.load_vgg_params()
+  t0 = time.time()
+  summary = stylized_lib.stylize_scene(
+      scene, data,
+      lambda view, style, alpha: stylize_lib.stylize_image(decoder, encoder, view, [style],
+                                                           alpha=alpha),
+      lambda image: stylized_lib.style_vector_of(encoder, image),
+      args.styles, alphas, args.include_original, args.out)
+  print_summary("stylized dataset done", [
+      ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
+      ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),
+      ("images", f"{summary['written']} written, {summary['skipped']} already there"),
+      ("time", f"{time.time() - t0:.0f} s"),
+      ("next", f"msnerf multistyle train --nerf NERF_RUN --stylized {args.out} --out RUN_DIR")])
+
+
+def cmd_train(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.stylized import load_stylized
+  from msnerf_jax.train import multistyle
+  if args.steps < 1:
+    raise UserError(f"--steps {args.steps}: must be >= 1")
+  if not args.lr > 0:
+    raise UserError(f"--lr {args.lr}: must be positive")
+  if os.path.isfile(args.out):
+    raise UserError(f"{args.out}: is a file, expected a run folder")
+  config = config_lib.MultistyleConfig(
+      density_aware=args.density_aware, steps=args.steps, batch_rays=args.batch_rays,
+      lr_init=args.lr, lr_final=args.lr / 10, checkpoint_every=args.checkpoint_every,
+      seed=args.seed)
+  stylized = load_stylized(args.stylized)
+  print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
+        f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")
+  summary = multistyle.train(config, args.nerf, stylized, args.out, n_devices=args.devices)
+  print_summary("multi-style training done", [
+      ("run", summary["run_dir"]),
+      ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
+      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
+      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
+                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB (all styles)"),
+      ("next", f"msnerf multistyle eval --run {args.out}; msnerf render --run {args.out} "
+               f"--out {os.path.join(args.out, 'video')}")])
+
+
+def load_multistyle(run_dir):
+  """(run, scene) of a multi-style run folder."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.checkpoint import load_run
+  from msnerf_jax.data.scene import load_scene
+  run = load_run(run_dir)
+  if run.kind != "multistyle":
+    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a multi-style run")
+  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
+                              os.path.join(run_dir, "run.json"))
+  scene, _ = load_scene(data)
+  return run, scene
+
+
+def cmd_eval(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import video
+  from msnerf_jax.data.images import atomic_write_bytes
+  from msnerf_jax.data.stylized import load_stylized
+  from msnerf_jax.train import multistyle
+  run, scene = load_multistyle(args.run)
+  stylized = load_stylized(run.record["stylized"])
+  if list(stylized.names) != list(run.record["styles"]):
+    raise UserError(f"{run.record['stylized']}: styles {stylized.names} differ from the run's "
+                    f"{run.record['styles']}")
+  t0 = time.time()
+  rows, means = multistyle.evaluate(scene, stylized, run.params, run.config, args.split,
+                                    args.chunk)
+  out_dir = os.path.join(args.run, f"eval_{args.split}")
+  result = {"step": run.step, "split": args.split, "means": means, "views": rows}
+  atomic_write_bytes(os.path.join(out_dir, "metrics.json"), json.dumps(result, indent=2).encode())
+  # One figure: a held-out view, target above render, one column per style.
+  i = scene.split(args.split)[0]
+  out = multistyle.render_styles(scene, run.params, run.config, scene.c2w[i], stylized.vectors,
+                                 args.chunk)
+  figure = video.write_grid(os.path.join(out_dir, "targets_vs_renders.png"),
+                            [list(stylized.images[:, i] / 255.0), list(out["rgb"])])
+  print(f"{'style':<28} {'PSNR':>7} {'SSIM':>7}")
+  for name, m in means.items():
+    print(f"{name:<28} {m['psnr']:7.2f} {m['ssim']:7.4f}")
+  print_summary(f"multi-style eval on {args.split} (step {run.step})", [
+      ("mean PSNR", f"{means['mean']['psnr']:.2f} dB"),
+      ("mean SSIM", f"{means['mean']['ssim']:.4f}"),
+      ("time", f"{time.time() - t0:.1f} s"), ("metrics", os.path.join(out_dir, "metrics.json")),
+      ("figure", figure)])
+
+
+def resolve_style(spec: str, vectors, encoder_cache) -> np.ndarray:
+  """A style vector [1024] from a training style's name or an image file."""
+  if spec in vectors:
+    return vectors[spec]
+  if os.path.isfile(spec):
+    # pylint: disable=g-import-not-at-top
+    from msnerf_jax.data import images as images_lib
+    from msnerf_jax.data.stylized import style_vector_of
+    from msnerf_jax.models import vgg
+    if "encoder" not in encoder_cache:
+      encoder_cache["encoder"] = vgg.load_vgg_params()
+    return style_vector_of(encoder_cache["encoder"], images_lib.read_image(spec, max_side=1024))
+  raise UserError(f"style {spec!r}: neither a training style ({', '.join(vectors)}) nor an "
+                  "image file")
+
+
+def blend(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+  """(1 - t) a + t b: t = 0 gives a and t = 1 gives b exactly."""
+  return ((1.0 - t) * np.asarray(a, np.float32) + t * np.asarray(b, np.float32)).astype(np.float32)
+
+
+def cmd_render(args):
+  # pylint: disable=g-import-not-at-top
+  from tqdm.auto import tqdm
+  from msnerf_jax import video
+  from msnerf_jax.checkpoint import read_run_file
+  from msnerf_jax.cli import nerf as nerf_cli
+  from msnerf_jax.train import multistyle
+  if read_run_file(args.run)["kind"] == "nerf":
+    return nerf_cli.cmd_render(args)
+  for name, value in (("--t", args.t), ("--strength", args.strength)):
+    if value is not None and not 0.0 <= value <= 1.0:
+      raise UserError(f"{name} {value}: must be in [0, 1]")
+  run, scene = load_multistyle(args.run)
+  vectors = multistyle.style_vectors(run)
+  names = list(vectors)
+  cache = {}
+  if args.interp:
+    main = blend(resolve_style(args.interp[0], vectors, cache),
+                 resolve_style(args.interp[1], vectors, cache), args.t)
+    label = f"{args.interp[0]} -> {args.interp[1]} at t={args.t:g}"
+  else:
+    main = resolve_style(args.style or names[0], vectors, cache)
+    label = args.style or names[0]
+  if args.strength is not None:
+    if "original" not in vectors:
+      raise UserError(f"--strength: {args.run} has no 'original' style (make the dataset with "
+                      "--include-original)")
+    main = blend(vectors["original"], main, args.strength)
+    label += f" at strength {args.strength:g}"
+  morph = args.morph or (names[:2] if len(names) >= 2 else None)
+  ends = [resolve_style(s, vectors, cache) for s in morph] if morph else None
+  poses = path_poses(scene, args.frames)
+  stem = output_stem(args.out)
+  render = lambda c2w, styles: multistyle.render_styles(scene, run.params, run.config, c2w,
+                                                        np.stack(styles), args.chunk)["rgb"]
+  t0 = time.time()
+  frames = [render(c2w, [main])[0] for c2w in tqdm(poses, desc="style video")]
+  written = video.write_videos(stem, frames, args.fps)
+  if ends is not None:
+    ts = np.linspace(0.0, 1.0, len(poses))
+    frames = [render(c2w, [blend(ends[0], ends[1], t)])[0]
+              for c2w, t in tqdm(list(zip(poses, ts)), desc="morph video")]
+    written += video.write_videos(stem + "_morph", frames, args.fps)
+    steps = np.linspace(0.0, 1.0, max(2, args.grid_steps))
+    views = poses[np.linspace(0, len(poses) - 1, max(1, args.grid_views) + 1)[:-1]
+                  .round().astype(int)]
+    rows = [list(render(c2w, [blend(ends[0], ends[1], t) for t in steps]))  # one sweep per view
+            for c2w in tqdm(views, desc="grid")]
+    written.append(video.write_grid(stem + "_grid.png", rows))
+  seconds = time.time() - t0
+  print_summary("multi-style render done", [
+      ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
+      ("frames", f"{len(poses)} of {scene.width}x{scene.height}"),
+      ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])

@@ -1,0 +1,232 @@
+"""The N x M stylized scene dataset on disk: every view of a scene stylized with every style.
+
+Layout of a dataset folder:
+  manifest.json           scene, size, splits, the styles (name, source, alpha) and which are done
+  poses.npy               [N, 3, 4] camera-to-world of the views (checked against a NeRF run)
+  <style>/style_vector.npy  the style's 1024-d vector
+  <style>/0000.png ...    view i stylized (PNG, the scene's resolution)
+
+Every file is written atomically and a style is marked done in the manifest only when all of
+its views exist, so an interrupted `stylize-scene` continues where it stopped.
+"""
+
+import dataclasses
+import json
+import os
+import re
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.errors import UserError
+
+MANIFEST = "manifest.json"
+POSES = "poses.npy"
+VECTOR = "style_vector.npy"
+ORIGINAL = "original"
+
+
+def style_name(path: str, alpha: float = 1.0) -> str:
+  """A folder-safe name of a style image (+ its strength when below 1): `starry_night_a0.5`."""
+  stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", os.path.splitext(os.path.basename(path))[0])
+  return stem if alpha == 1.0 else f"{stem}_a{alpha:g}"
+
+
+def view_file(out_dir: str, name: str, index: int) -> str:
+  return os.path.join(out_dir, name, f"{index:04d}.png")
+
+
+def _write_json(path: str, value: Any) -> None:
+  images_lib.atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
+
+
+def _write_npy(path: str, array: np.ndarray) -> None:
+  import io  # pylint: disable=g-import-not-at-top
+  buffer = io.BytesIO()
+  np.save(buffer, np.asarray(array), allow_pickle=False)
+  images_lib.atomic_write_bytes(path, buffer.getvalue())
+
+
+def _read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+  """np.load without pickles; UserError naming the file unless it has `shape` (None = any)."""
+  try:
+    array = np.load(path, allow_pickle=False)
+  except FileNotFoundError:
+    raise UserError(f"{path}: missing") from None
+  except (ValueError, OSError, EOFError) as e:
+    raise UserError(f"{path}: not a valid .npy array ({e})") from None
+  if array.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, array.shape)):
+    raise UserError(f"{path}: array of shape {array.shape}, expected "
+                    f"{tuple('?' if s is None else s for s in shape)}")
+  if not np.all(np.isfinite(array)):
+    raise UserError(f"{path}: holds NaN or inf")
+  return array.astype(np.float32)
+
+
+def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
+                  style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
+                  include_original: bool, out_dir: str, progress: bool = True) -> Dict[str, Any]:
+  """Writes (or completes) the stylized dataset of a scene.
+
+  Args:
+    scene, data_config: the loaded scene and the DataConfig that loads it again.
+    stylize_fn(content [H, W, 3], style [h, w, 3], alpha) -> [H, W, 3]: the 2D stylizer.
+    style_vector_fn(image [h, w, 3]) -> [1024]: the style vector of an image.
+    style_paths, alphas: style images and their strengths (one alpha each).
+    include_original: add the unstylized views as one more style named "original", whose
+      vector is the mean style vector of the training views.
+    out_dir: the dataset folder.
+  Returns:
+    summary dict {"out", "styles", "written", "skipped"}.
+  """
+  if len(alphas) != len(style_paths):
+    raise UserError(f"--alphas: got {len(alphas)} values for {len(style_paths)} styles")
+  for a in alphas:
+    if not 0.0 <= a <= 1.0:
+      raise UserError(f"--alphas {a}: must be in [0, 1]")
+  styles = [{"name": style_name(p, a), "source": os.path.abspath(p), "alpha": float(a)}
+            for p, a in zip(style_paths, alphas)]
+  if include_original:
+    styles.append({"name": ORIGINAL, "source": None, "alpha": 0.0})
+  names = [s["name"] for s in styles]
+  if len(set(names)) != len(names):
+    raise UserError(f"two styles have the same name ({', '.join(names)}); rename a file")
+  # Read every style image first: a bad one stops the run before anything is written.
+  pictures = {s["name"]: images_lib.read_image(s["source"], max_side=1024) for s in styles
+              if s["source"]}
+  manifest = {
+      "data": config_lib.to_dict(data_config), "height": scene.height, "width": scene.width,
+      "n_views": len(scene.images), "splits": {k: [int(i) for i in v]
+                                               for k, v in scene.splits.items()},
+      "views": [os.path.basename(p) for p in scene.image_paths], "styles": styles, "done": []}
+  path = os.path.join(out_dir, MANIFEST)
+  if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+    raise UserError(f"{out_dir}: is a file, expected a folder")
+  if os.path.exists(path):
+    saved = read_manifest(out_dir)
+    mismatch = config_lib.diff({k: v for k, v in saved.items() if k != "done"},
+                               {k: v for k, v in manifest.items() if k != "done"})
+    if mismatch:
+      raise UserError(f"{out_dir}: holds a stylized dataset made differently ({mismatch}); "
+                      "use another --out, or the same options to continue")
+    manifest["done"] = [n for n in saved["done"] if n in names]
+  try:
+    os.makedirs(out_dir, exist_ok=True)
+    _write_npy(os.path.join(out_dir, POSES), scene.c2w)
+    _write_json(path, manifest)
+  except PermissionError:
+    raise UserError(f"{out_dir}: not writable") from None
+
+  written = skipped = 0
+  for style in styles:
+    name = style["name"]
+    if name in manifest["done"]:
+      skipped += len(scene.images)
+      continue
+    if name == ORIGINAL:
+      train = scene.split("train")
+      vector = np.mean([np.asarray(style_vector_fn(scene.images[i])) for i in train], axis=0)
+    else:
+      vector = np.asarray(style_vector_fn(pictures[name]))
+    _write_npy(os.path.join(out_dir, name, VECTOR), vector)
+    for i in tqdm(range(len(scene.images)), desc=f"stylize {name}", disable=not progress,
+                  dynamic_ncols=True):
+      target = view_file(out_dir, name, i)
+      if os.path.exists(target):
+        skipped += 1
+        continue
+      view = scene.images[i]
+      if name != ORIGINAL:
+        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"]))
+        if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
+          a = scene.alphas[i][..., None].astype(np.float32) / 255.0
+          view = view * a + (1.0 - a)
+      images_lib.write_image(target, view)
+      written += 1
+    manifest["done"].append(name)
+    _write_json(path, manifest)
+  return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
+
+
+def read_manifest(out_dir: str) -> Dict[str, Any]:
+  path = os.path.join(out_dir, MANIFEST)
+  if not os.path.isdir(out_dir):
+    raise UserError(f"{out_dir}: no such stylized dataset folder")
+  try:
+    with open(path) as f:
+      manifest = json.load(f)
+  except FileNotFoundError:
+    raise UserError(f"{path}: missing; make the dataset with `msnerf stylize-scene`") from None
+  except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    raise UserError(f"{path}: malformed JSON ({e})") from None
+  required = ("data", "height", "width", "n_views", "splits", "styles", "done")
+  if not isinstance(manifest, dict) or any(k not in manifest for k in required):
+    raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
+  return manifest
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class StylizedData:
+  """A loaded stylized dataset. images: [M, N, H, W, 3] uint8; vectors: [M, 1024];
+  c2w: [N, 3, 4]; names: the M style names; splits: name -> view indices."""
+  names: List[str]
+  vectors: np.ndarray
+  images: np.ndarray
+  c2w: np.ndarray
+  splits: Dict[str, np.ndarray]
+  path: str
+
+  def vector(self, name: str) -> np.ndarray:
+    if name not in self.names:
+      raise UserError(f"style {name!r}: not in {self.path} (has {', '.join(self.names)})")
+    return self.vectors[self.names.index(name)]
+
+
+def load_stylized(out_dir: str, progress: bool = True) -> StylizedData:
+  """Reads a complete stylized dataset (every style done); UserError naming what is wrong."""
+  manifest = read_manifest(out_dir)
+  names = [s["name"] for s in manifest["styles"]]
+  missing = [n for n in names if n not in manifest["done"]]
+  if not names:
+    raise UserError(f"{os.path.join(out_dir, MANIFEST)}: lists no styles")
+  if missing:
+    raise UserError(f"{out_dir}: styles {', '.join(missing)} are not finished; re-run the "
+                    "same `msnerf stylize-scene` command to complete them")
+  n, h, w = manifest["n_views"], manifest["height"], manifest["width"]
+  c2w = _read_npy(os.path.join(out_dir, POSES), (n, 3, 4))
+  vectors = np.stack([_read_npy(os.path.join(out_dir, m, VECTOR), (1024,)) for m in names])
+  images = np.empty((len(names), n, h, w, 3), np.uint8)
+  for m, name in enumerate(names):
+    for i in tqdm(range(n), desc=f"loading {name}", disable=not progress, leave=False):
+      path = view_file(out_dir, name, i)
+      image = images_lib.read_image(path)
+      if image.shape[:2] != (h, w):
+        raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the manifest "
+                        f"says {w}x{h}")
+      images[m, i] = images_lib.to_uint8(image)
+  splits = {k: np.asarray(v, np.int64) for k, v in manifest["splits"].items()}
+  return StylizedData(names=names, vectors=vectors, images=images, c2w=c2w, splits=splits,
+                      path=out_dir)
+
+
+VECTOR_MAX_SIDE = 512  # style images are shrunk to this before their style vector is taken.
+
+
+def style_vector_of(encoder_params: Any, image: np.ndarray) -> np.ndarray:
+  """The style vector [1024] of an image [h, w, 3] in [0, 1], with its longer side shrunk to
+  VECTOR_MAX_SIDE, so the vector of a style does not depend on the file's resolution (and one
+  compilation serves most images). Used for training styles and for any image at render time."""
+  # pylint: disable=g-import-not-at-top
+  import jax.numpy as jnp
+  from msnerf_jax import adain as adain_lib
+  h, w = image.shape[:2]
+  scale = VECTOR_MAX_SIDE / max(h, w)
+  if scale < 1:
+    image = images_lib.resize(image, max(16, round(h * scale)), max(16, round(w * scale)))
+  if min(image.shape[:2]) < 16:
+    raise UserError(f"style image of {w}x{h} pixels is too small (needs at least 16x16)")
+  return np.asarray(adain_lib.style_vector_jit(encoder_params, jnp.asarray(image, jnp.float32)))

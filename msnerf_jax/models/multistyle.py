@@ -1,0 +1,177 @@
+"""The multi-style NeRF MLP: a frozen NeRF `trunk` with style-conditioned colour (and density) heads.
+
+METHOD.md "Multi-style NeRF details": a style MLP (1024 -> 1024 -> 512 -> W/2) maps the style
+vector to a code that is concatenated with the trunk's view features and fed to a new rgb MLP
+(W -> W/2 -> 3). The density-aware variant adds a style-to-density MLP (-> W) whose output,
+concatenated with the trunk's last point layer, feeds a new density MLP (2W -> W -> 1).
+
+The style vector is constant over a ray, so everything that depends only on the style runs
+once per style (`codes`), including the style half of each head's first layer: a Dense over
+`concat([x, code])` is `x @ K_x + (code @ K_code + b)`, and the bracket is per style.
+"""
+
+from typing import Dict, Optional, Sequence
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
+
+
+class StyleMLP(nn.Module):
+  """Dense layers with ReLU between them (none after the last): [..., in] -> [..., features[-1]]."""
+  features: Sequence[int]
+
+  @nn.compact
+  def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
+    for i, width in enumerate(self.features):
+      x = nn.Dense(width, name=f"dense_{i}")(x)
+      if i < len(self.features) - 1:
+        x = nn.relu(x)
+    return x
+
+
+class ConcatDense(nn.Module):
+  """Dense layer over concat([x, code]) with the code's half applied separately.
+
+  Params `kernel` [x_dim + code_dim, features] and `bias` are those of one Dense on the
+  concatenation; `project_code` is its per-style part, `__call__` adds the per-sample part.
+  """
+  features: int
+  x_dim: int
+  code_dim: int
+
+  def setup(self):
+    self.kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                             (self.x_dim + self.code_dim, self.features))
+    self.bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+
+  def project_code(self, code: jnp.ndarray) -> jnp.ndarray:
+    """code [M, code_dim] -> [M, features] (bias included)."""
+    return code @ self.kernel[self.x_dim:] + self.bias
+
+  def __call__(self, x: jnp.ndarray, projected: jnp.ndarray) -> jnp.ndarray:
+    """x [..., x_dim] + projected code (broadcastable to [..., features]) -> [..., features]."""
+    return x @ self.kernel[:self.x_dim] + projected
+
+
+class MultiStyleMLP(nn.Module):
+  """Frozen `trunk` + `style_rgb`, `rgb_hidden`, `rgb_out` (+ `style_density`, `density_hidden`,
+  `density_out` when density-aware), and optional extra layers `rgb_extra_i` / `density_extra_i`.
+
+  Params: {"trunk": <the NeRF's trunk>, "style_rgb": ..., "rgb_hidden": ..., "rgb_out": ...}.
+  """
+  trunk: NerfTrunk
+  density_aware: bool = False
+  style_dim: int = 1024
+  style_hidden: Sequence[int] = (1024, 512)
+  rgb_extra_layers: int = 0
+  density_extra_layers: int = 0
+
+  def setup(self):
+    w = self.trunk.width
+    self.style_rgb = StyleMLP((*self.style_hidden, w // 2))
+    self.rgb_hidden = ConcatDense(w // 2, w // 2, w // 2)
+    self.rgb_extra = [nn.Dense(w // 2, name=f"rgb_extra_{i}") for i in range(self.rgb_extra_layers)]
+    self.rgb_out = nn.Dense(3)
+    if self.density_aware:
+      hidden_dim = w + (self.trunk.pos_freqs * 6 + 3 if self.trunk.skip_layer == self.trunk.depth - 1
+                        else 0)
+      self.style_density = StyleMLP((*self.style_hidden, w))
+      self.density_hidden = ConcatDense(w, hidden_dim, w)
+      self.density_extra = [nn.Dense(w, name=f"density_extra_{i}")
+                            for i in range(self.density_extra_layers)]
+      self.density_out = nn.Dense(1)
+
+  def codes(self, styles: jnp.ndarray) -> Dict[str, jnp.ndarray]:
+    """Everything that depends only on the style, once per style.
+
+    Args: styles [M, style_dim]. Returns {"rgb": [M, W/2]} (+ {"density": [M, W]}).
+    """
+    chex.assert_shape(styles, (None, self.style_dim))
+    out = {"rgb": self.rgb_hidden.project_code(self.style_rgb(styles))}
+    if self.density_aware:
+      out["density"] = self.density_hidden.project_code(self.style_density(styles))
+    return out
+
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray,
+               codes: Dict[str, jnp.ndarray]):
+    """Colour (and density) of every sample in every style.
+
+    Args:
+      points: [R, S, 3] shared by all styles, or [M, R, S, 3] one set per style.
+      viewdirs: [R, 1, 3] (or broadcastable to the points).
+      codes: from `codes`, leading dimension M.
+    Returns:
+      rgb [M, R, S, 3] in [0, 1]; raw sigma [R, S] (frozen trunk density, or per-style
+      points: [M, R, S]), or [M, R, S] when density-aware.
+    """
+    chex.assert_rank(points, {3, 4})
+    per_style = lambda c: c[:, None, None, :]  # [M, C] -> [M, 1, 1, C]: broadcast over samples.
+    out = self.trunk(points, viewdirs)
+    h = nn.relu(self.rgb_hidden(out["view_features"], per_style(codes["rgb"])))
+    for layer in self.rgb_extra:
+      h = nn.relu(layer(h))
+    rgb = nn.sigmoid(self.rgb_out(h))
+    sigma = out["sigma"]
+    if self.density_aware:
+      d = nn.relu(self.density_hidden(out["hidden"], per_style(codes["density"])))
+      for layer in self.density_extra:
+        d = nn.relu(layer(d))
+      sigma = self.density_out(d)[..., 0]
+    return rgb, sigma
+
+
+def multistyle_mlp(config) -> MultiStyleMLP:
+  """The MLP of a MultistyleConfig (its trunk is the NeRF config's)."""
+  return MultiStyleMLP(trunk=nerf_trunk(config.nerf), density_aware=config.density_aware,
+                       style_dim=config.style_dim,
+                       style_hidden=(config.style_hidden, config.style_hidden2),
+                       rgb_extra_layers=config.rgb_extra_layers,
+                       density_extra_layers=config.density_extra_layers)
+
+
+def init_multistyle_params(config, key: jax.Array,
+                           nerf_params: Optional[Dict] = None) -> Dict[str, Dict]:
+  """Params {"coarse", "fine"} of a multi-style model; with `nerf_params` (a NeRF run's
+  {"coarse", "fine"}), each `trunk` is that run's trunk, copied leaf for leaf, and a
+  density-aware head starts out reproducing the trunk's density (see start_from_density)."""
+  model = multistyle_mlp(config)
+  x = jnp.zeros((1, 1, 3), jnp.float32)
+  styles = jnp.zeros((1, config.style_dim), jnp.float32)
+  init = lambda k: model.init(k, x, x, styles, method=lambda m, p, d, s: m(p, d, m.codes(s)))
+  params = {}
+  for net, k in zip(("coarse", "fine"), jax.random.split(key)):
+    params[net] = dict(init(k)["params"])
+    if nerf_params is not None:
+      params[net]["trunk"] = jax.tree_util.tree_map(jnp.asarray, nerf_params[net]["trunk"])
+      if config.density_aware:
+        params[net] = start_from_density(params[net])
+  return params
+
+
+def start_from_density(params: Dict) -> Dict:
+  """Sets two units of the new density MLP so that it outputs the trunk's density exactly.
+
+  A randomly initialised density head starts with most raw densities below zero (no
+  density, no gradient: the coarse pass never learns). Instead, hidden unit 0 computes the
+  frozen head's value a = h @ w + b and unit 1 computes -a, and the output layer takes
+  relu(a) - relu(-a) = a; extra layers pass both units through. The other units start as
+  initialised, with zero output weights, so they learn the style-dependent change.
+  """
+  w, b = params["trunk"]["density"]["kernel"][:, 0], params["trunk"]["density"]["bias"][0]
+  hidden = params["density_hidden"]
+  n = w.shape[0]
+  kernel = hidden["kernel"].at[:, :2].set(0.0).at[:n, 0].set(w).at[:n, 1].set(-w)
+  params["density_hidden"] = {"kernel": kernel, "bias": hidden["bias"].at[:2].set(
+      jnp.stack([b, -b]))}
+  for name in sorted(k for k in params if k.startswith("density_extra_")):
+    layer = params[name]
+    k = layer["kernel"].at[:, :2].set(0.0).at[:2, :].set(0.0).at[0, 0].set(1.0).at[1, 1].set(1.0)
+    params[name] = {"kernel": k, "bias": layer["bias"].at[:2].set(0.0)}
+  out = params["density_out"]
+  params["density_out"] = {"kernel": jnp.zeros_like(out["kernel"]).at[0, 0].set(1.0)
+                           .at[1, 0].set(-1.0), "bias": jnp.zeros_like(out["bias"])}
+  return params

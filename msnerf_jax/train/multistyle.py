@@ -1,0 +1,257 @@
+"""Training a multi-style NeRF on a stylized dataset, top to bottom: a trained NeRF's frozen trunk,
+new style heads, a batch of pixels supervised in every style at once, MSE, Adam on the heads."""
+
+import dataclasses
+import functools
+import os
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from msnerf_jax import checkpoint as ckpt_lib
+from msnerf_jax import config as config_lib
+from msnerf_jax import metrics
+from msnerf_jax import render as render_lib
+from msnerf_jax.config import MultistyleConfig
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data.scene import Scene, load_scene
+from msnerf_jax.data.stylized import StylizedData
+from msnerf_jax.errors import UserError
+from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
+from msnerf_jax.models.nerf import init_nerf_params
+from msnerf_jax.train import loop as loop_lib
+from msnerf_jax.train import nerf as nerf_lib
+from msnerf_jax.train import state as state_lib
+
+KIND = "multistyle"
+FROZEN = "trunk"
+STYLE_VECTORS = "style_vectors.npy"
+
+
+@dataclasses.dataclass(frozen=True)
+class MultistyleField:
+  """The style field of a MultistyleConfig as a hashable value (a static jit argument)."""
+  config: MultistyleConfig
+
+  def codes(self, params, styles):
+    """Style MLP outputs, once per style: styles [M, 1024] -> {"rgb": [M, W/2], ...}."""
+    model = multistyle_mlp(self.config)
+    return model.apply({"params": params}, styles, method=model.codes)
+
+  def __call__(self, params, points, viewdirs, codes):
+    """points [R, S, 3] or [M, R, S, 3] -> rgb [M, R, S, 3], raw sigma (see MultiStyleMLP)."""
+    return multistyle_mlp(self.config).apply({"params": params}, points, viewdirs, codes)
+
+
+# ----------------------------------------------------------------------------- frozen trunk
+
+
+def split_frozen(params) -> Tuple[Dict, Dict]:
+  """(trainable, frozen): params {"coarse", "fine"} split into the heads and the `trunk`s."""
+  trainable = {net: {k: v for k, v in p.items() if k != FROZEN} for net, p in params.items()}
+  frozen = {net: {FROZEN: p[FROZEN]} for net, p in params.items()}
+  return trainable, frozen
+
+
+def merge(trainable, frozen) -> Dict:
+  return {net: {**trainable[net], **frozen[net]} for net in trainable}
+
+
+def frozen_mask(params):
+  """True for every leaf under a `trunk` subtree (the optimizer's freeze mask)."""
+  trainable, frozen = split_frozen(params)
+  return merge(jax.tree_util.tree_map(lambda _: False, trainable),
+               jax.tree_util.tree_map(lambda _: True, frozen))
+
+
+def init_state(config: MultistyleConfig, nerf_params) -> state_lib.TrainState:
+  """Heads freshly initialised, trunks copied from the NeRF run; Adam only on the heads."""
+  params = init_multistyle_params(config, jax.random.PRNGKey(config.seed), nerf_params)
+  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
+                                               config.lr_decay_steps), frozen=frozen_mask)
+  return state_lib.create_state(params, tx)
+
+
+# ----------------------------------------------------------------------------- the step
+
+
+def loss_fn(trainable, frozen, batch, styles, config: MultistyleConfig, white_background: bool):
+  """MSE of the coarse and fine renders in every style against the stylized targets.
+
+  batch["rgb"]: [B, M, 3] uint8, pixel b of the training view in each of the M styles.
+  The frozen trunks enter through stop_gradient, so no gradient is computed for them.
+  """
+  params = merge(trainable, jax.lax.stop_gradient(frozen))
+  out = render_lib.render_rays_styles(MultistyleField(config), params, batch["rays"], styles,
+                                      config.nerf, batch["random"], white_background)
+  target = jnp.swapaxes(batch["rgb"], 0, 1).astype(jnp.float32) / 255.0  # [M, B, 3]
+  mse_coarse = jnp.mean((out["coarse"]["rgb"] - target) ** 2)
+  mse_fine = jnp.mean((out["fine"]["rgb"] - target) ** 2)
+  return mse_coarse + mse_fine, {"loss": mse_coarse + mse_fine, "mse_coarse": mse_coarse,
+                                 "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+
+
+def train_step(state: state_lib.TrainState, batch, styles, config: MultistyleConfig,
+               white_background: bool, axis_name: Optional[str] = None):
+  """One Adam step on the style heads; the trunks come out bit-identical.
+
+  Gradients are taken with respect to the trainable subtrees only; the optimizer's freeze
+  mask gives the trunks no update and no state; and the trunks of the new params are the
+  old arrays themselves (not old + 0), so they never change by a bit.
+  """
+  trainable, frozen = split_frozen(state.params)
+  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, styles, config,
+                                                 white_background)
+  if axis_name is not None:
+    grads = jax.lax.pmean(grads, axis_name)
+    stats = jax.lax.pmean(stats, axis_name)
+  grads = merge(grads, jax.tree_util.tree_map(jnp.zeros_like, frozen))
+  state = state.apply_gradients(grads=grads)
+  return state.replace(params=merge(split_frozen(state.params)[0], frozen)), stats
+
+
+def compile_train_step(config: MultistyleConfig, styles: jnp.ndarray, white_background: bool,
+                       n_devices: int) -> Callable:
+  """jit/pmap step with the style vectors [M, 1024] bound (the same on every device)."""
+  return loop_lib.compile_step(functools.partial(
+      train_step, styles=jnp.asarray(styles), config=config,
+      white_background=white_background), n_devices)
+
+
+def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
+  """A random batch of pixels of the training views, with their colour in every style.
+
+  images: [N, H, W, M, 3] uint8. Returns {"rays" [B], "rgb" [B, M, 3] uint8, "random"}.
+  """
+  sampling = dataclasses.replace(config.nerf, batch_rays=config.batch_rays)
+  return nerf_lib.sample_batch(key, images, c2w, K, sampling, False, scene.ndc,
+                               (scene.height, scene.width, scene.focal), scene.near, scene.far)
+
+
+# ----------------------------------------------------------------------------- inputs
+
+
+def load_nerf_run(nerf_run_dir: str) -> Tuple[ckpt_lib.Run, Scene, config_lib.DataConfig]:
+  """A trained NeRF run, checked against its own config, and its scene."""
+  run = ckpt_lib.load_run(nerf_run_dir)
+  if run.kind != "nerf":
+    raise UserError(f"{nerf_run_dir}: a {run.kind!r} run, not a NeRF run "
+                    "(train one with `msnerf nerf train`)")
+  expected = jax.eval_shape(lambda: init_nerf_params(run.config, jax.random.PRNGKey(0)))
+  ckpt = os.path.join(nerf_run_dir, ckpt_lib.CHECKPOINT_DIR, str(run.step))
+  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(run.params):
+    raise UserError(f"{ckpt}: parameters of another architecture than its run.json says")
+  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
+                               jax.tree_util.tree_leaves(run.params)):
+    if tuple(want.shape) != tuple(np.shape(got)):
+      raise UserError(f"{ckpt}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
+                      f"its config expects {tuple(want.shape)} (another architecture)")
+  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
+                              os.path.join(nerf_run_dir, ckpt_lib.RUN_FILE))
+  scene, data = load_scene(data)
+  return run, scene, data
+
+
+def check_compatible(stylized: StylizedData, scene: Scene, nerf_run_dir: str) -> None:
+  """UserError unless the stylized dataset has the NeRF run's views: sizes and poses."""
+  n, h, w = stylized.images.shape[1:4]
+  if (h, w) != (scene.height, scene.width):
+    raise UserError(f"{stylized.path}: views are {w}x{h}, the NeRF run {nerf_run_dir} was "
+                    f"trained at {scene.width}x{scene.height} (use the same --downscale)")
+  if n != len(scene.images) or not np.allclose(stylized.c2w, scene.c2w, atol=1e-4):
+    raise UserError(f"{stylized.path}: camera poses do not match the scene of the NeRF run "
+                    f"{nerf_run_dir} (stylized from another scene?)")
+
+
+# ----------------------------------------------------------------------------- the loop
+
+
+def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, run_dir: str,
+          n_devices: Optional[int] = None, progress: bool = True,
+          callback: Optional[Callable[[int, Any], None]] = None) -> Dict[str, Any]:
+  """Trains (or resumes) a multi-style NeRF in `run_dir` from a NeRF run and a stylized dataset.
+
+  `config.nerf` is replaced by the NeRF run's config. Returns the loop's summary dict.
+  """
+  nerf_run, scene, data = load_nerf_run(nerf_run_dir)
+  config = dataclasses.replace(config, nerf=nerf_run.config)
+  check_compatible(stylized, scene, nerf_run_dir)
+  n_devices = n_devices or jax.local_device_count()
+  if config.batch_rays % n_devices:
+    raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
+  ckpt_lib.prepare_run_dir(run_dir, KIND, {
+      "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
+      "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
+      "styles": list(stylized.names)})
+  save_style_vectors(run_dir, stylized.vectors)
+  train_idx = stylized.splits["train"]
+  # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.
+  images = jnp.asarray(np.moveaxis(stylized.images[:, train_idx], 0, 3))
+  c2w = jnp.asarray(scene.c2w[train_idx])
+  K = jnp.asarray(scene.K)
+  base_key = jax.random.PRNGKey(config.seed)
+  step_fn = compile_train_step(config, stylized.vectors, scene.white_background, n_devices)
+  return loop_lib.fit(
+      init_state(config, nerf_run.params), step_fn,
+      lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene),
+      run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
+      keep_checkpoints=config.keep_checkpoints, n_devices=n_devices, desc="multistyle train",
+      progress=progress, callback=callback)
+
+
+def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
+  import io  # pylint: disable=g-import-not-at-top
+  buffer = io.BytesIO()
+  np.save(buffer, np.asarray(vectors, np.float32), allow_pickle=False)
+  images_lib.atomic_write_bytes(os.path.join(run_dir, STYLE_VECTORS), buffer.getvalue())
+
+
+def style_vectors(run: ckpt_lib.Run) -> Dict[str, np.ndarray]:
+  """name -> [1024] vector of every training style of a multi-style run."""
+  path = os.path.join(run.run_dir, STYLE_VECTORS)
+  try:
+    vectors = np.load(path, allow_pickle=False)
+  except (OSError, ValueError) as e:
+    raise UserError(f"{path}: unreadable ({e})") from None
+  names = run.record.get("styles", [])
+  if vectors.shape != (len(names), run.config.style_dim):
+    raise UserError(f"{path}: shape {vectors.shape}, expected ({len(names)}, "
+                    f"{run.config.style_dim}) for styles {names}")
+  return dict(zip(names, vectors))
+
+
+# ----------------------------------------------------------------------------- rendering
+
+
+def render_styles(scene: Scene, params, config: MultistyleConfig, c2w: np.ndarray,
+                  styles: np.ndarray, chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """One camera in K styles at once (a style sweep): rgb [K, H, W, 3], depth [K, H, W] ..."""
+  styles = jnp.asarray(np.atleast_2d(styles), jnp.float32)
+  return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(c2w),
+                                 config.nerf, scene.white_background, chunk, styles=styles)
+
+
+def evaluate(scene: Scene, stylized: StylizedData, params, config: MultistyleConfig,
+             split: str = "val", chunk: Optional[int] = None, progress: bool = True
+             ) -> Tuple[List[Dict[str, Any]], Dict[str, Dict[str, float]]]:
+  """Per-style PSNR/SSIM on the held-out stylized views of a split.
+
+  Returns (rows: one per (style, view), means: style -> {"psnr", "ssim"} plus "mean").
+  """
+  idx = scene.split(split)
+  rows = []
+  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+    out = render_styles(scene, params, config, scene.c2w[i], stylized.vectors, chunk)
+    for m, name in enumerate(stylized.names):
+      target = stylized.images[m, i].astype(np.float32) / 255.0
+      rows.append({"style": name, "view": int(i),
+                   "psnr": float(metrics.psnr(out["rgb"][m], target)),
+                   "ssim": float(metrics.ssim(out["rgb"][m], target))})
+  means = {}
+  for name in stylized.names + ["mean"]:
+    mine = [r for r in rows if name in ("mean", r["style"])]
+    means[name] = {k: float(np.mean([r[k] for r in mine])) for k in ("psnr", "ssim")}
+  return rows, means

@@ -1,0 +1,320 @@
+"""Multi-style NeRF: the frozen trunk, the shared-sample step, sweeps, interpolation, the CLI and
+its bad input, on a tiny synthetic scene with an untrained (random) AdaIN decoder."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+from msnerf_jax import checkpoint, cli, load_run
+from msnerf_jax import config as config_lib
+from msnerf_jax.config import DataConfig, MultistyleConfig
+from msnerf_jax.data.scene import load_scene
+from msnerf_jax.data.stylized import load_stylized
+from msnerf_jax.models import decoder
+from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP
+from msnerf_jax.models.nerf import NerfTrunk
+from msnerf_jax.train import multistyle, nerf
+
+from conftest import write_blender_scene
+from test_train_nerf import TINY
+
+TESTS = os.path.dirname(os.path.abspath(__file__))
+
+
+def leaves_with_paths(tree):
+  return [(jax.tree_util.keystr(p), np.asarray(v))
+          for p, v in jax.tree_util.tree_leaves_with_path(tree)]
+
+
+def fake_decoder(path):
+  """An AdaIN run folder with an untrained decoder: enough to exercise the plumbing."""
+  checkpoint.prepare_run_dir(str(path), "adain",
+                             {"config": config_lib.to_dict(config_lib.AdainConfig())})
+  ckpts = checkpoint.Checkpoints(str(path))
+  ckpts.save(1, {"params": decoder.init_decoder(jax.random.PRNGKey(0)), "step": np.asarray(1)})
+  ckpts.close()
+  return str(path)
+
+
+def write_style(path, colour, size=(40, 24)):
+  rng = np.random.default_rng(sum(colour))
+  noise = rng.integers(0, 60, (size[1], size[0], 3))
+  Image.fromarray(np.clip(np.asarray(colour) + noise, 0, 255).astype(np.uint8)).save(path)
+  return str(path)
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+  """A scene, a NeRF run on it, two style images and the stylized dataset (via the CLI)."""
+  root = tmp_path_factory.mktemp("ms")
+  scene_dir = write_blender_scene(str(root / "scene"), n_train=4, n_val=2, size=16)
+  scene, data = load_scene(DataConfig(path=scene_dir))
+  nerf_run = str(root / "nerf")
+  nerf.train(scene, dataclasses.replace(TINY, steps=4), data, nerf_run, progress=False)
+  styles = [write_style(root / "red.png", (200, 30, 30)), write_style(root / "blue.png", (20, 40, 200))]
+  dec = fake_decoder(root / "decoder")
+  stylized = str(root / "stylized")
+  assert cli.main(["stylize-scene", "--data", scene_dir, "--decoder", dec, "--styles", *styles,
+                   "--include-original", "--out", stylized]) == 0
+  return {"root": root, "scene_dir": scene_dir, "scene": scene, "nerf": nerf_run,
+          "styles": styles, "decoder": dec, "stylized": stylized}
+
+
+@pytest.fixture(scope="module", params=[False, True], ids=["standard", "density_aware"])
+def trained(world, request):
+  run = str(world["root"] / f"ms_{request.param}")
+  argv = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
+          "--out", run, "--steps", "3", "--batch-rays", "32", "--checkpoint-every", "3"]
+  assert cli.main(argv + (["--density-aware"] if request.param else [])) == 0
+  return run
+
+
+# ----------------------------------------------------------------------------- the model
+
+
+def test_concat_dense_is_one_dense_on_the_concatenation():
+  layer = ConcatDense(features=5, x_dim=3, code_dim=4)
+  x, code = jnp.arange(6.0).reshape(2, 3) / 5, jnp.ones((1, 4)) * 0.3
+  params = layer.init(jax.random.PRNGKey(0), x, jnp.zeros((1, 5)))
+  params = layer.init(jax.random.PRNGKey(0), x, layer.apply(params, code, method="project_code"))
+  projected = layer.apply(params, code, method="project_code")
+  got = layer.apply(params, x, projected)
+  p = params["params"]
+  want = jnp.concatenate([x, jnp.broadcast_to(code, (2, 4))], -1) @ p["kernel"] + p["bias"]
+  np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("density_aware", [False, True])
+def test_heads_run_per_style_and_density_is_shared_unless_density_aware(density_aware):
+  trunk = NerfTrunk(depth=2, width=16, skip_layer=0, pos_freqs=2, dir_freqs=1)
+  model = MultiStyleMLP(trunk=trunk, density_aware=density_aware, style_dim=8,
+                        style_hidden=(8, 8))
+  points = jax.random.normal(jax.random.PRNGKey(0), (5, 7, 3))
+  viewdirs = jnp.ones((5, 1, 3)) / np.sqrt(3)
+  styles = jax.random.normal(jax.random.PRNGKey(1), (3, 8))
+  full = lambda m, p, d, s: m(p, d, m.codes(s))
+  params = model.init(jax.random.PRNGKey(2), points, viewdirs, styles, method=full)
+  rgb, sigma = model.apply(params, points, viewdirs, styles, method=full)
+  assert rgb.shape == (3, 5, 7, 3)
+  assert sigma.shape == ((3, 5, 7) if density_aware else (5, 7))
+  assert set(params["params"]) >= {"trunk", "style_rgb", "rgb_hidden", "rgb_out"}
+  assert ("style_density" in params["params"]) == density_aware
+  # Style 1 alone gives the same colours as style 1 within the batch of three.
+  rgb1, _ = model.apply(params, points, viewdirs, styles[1:2], method=full)
+  np.testing.assert_allclose(rgb1[0], rgb[1], atol=1e-6)
+  assert float(jnp.max(jnp.abs(rgb[0] - rgb[2]))) > 1e-4  # styles differ
+
+
+# ----------------------------------------------------------------------------- dataset and training
+
+
+def test_stylized_dataset_layout_and_continuation(world, capsys):
+  data = load_stylized(world["stylized"])
+  assert data.names == ["red", "blue", "original"]
+  assert data.images.shape == (3, 6, 16, 16, 3) and data.images.dtype == np.uint8
+  assert data.vectors.shape == (3, 1024) and np.all(np.isfinite(data.vectors))
+  assert not np.allclose(data.vectors[0], data.vectors[1])
+  scene = world["scene"]
+  np.testing.assert_array_equal(data.images[2], np.round(scene.images * 255).astype(np.uint8))
+  # Interrupt: one image of "blue" lost and the style not marked done -> only it is redone.
+  manifest_path = os.path.join(world["stylized"], "manifest.json")
+  manifest = json.load(open(manifest_path))
+  target = os.path.join(world["stylized"], "blue", "0003.png")
+  before = open(target, "rb").read()
+  os.remove(target)
+  manifest["done"] = ["red"]
+  json.dump(manifest, open(manifest_path, "w"))
+  capsys.readouterr()
+  assert cli.main(["stylize-scene", "--data", world["scene_dir"], "--decoder", world["decoder"],
+                   "--styles", *world["styles"], "--include-original",
+                   "--out", world["stylized"]]) == 0
+  assert "1 written" in capsys.readouterr().out
+  assert open(target, "rb").read() == before  # deterministic
+  assert json.load(open(manifest_path))["done"] == ["red", "blue", "original"]
+
+
+def test_trunk_is_frozen_and_heads_train(world, trained):
+  run, nerf_run = load_run(trained), load_run(world["nerf"])
+  assert run.kind == "multistyle" and run.step == 3
+  for net in ("coarse", "fine"):
+    got, want = leaves_with_paths(run.params[net]["trunk"]), leaves_with_paths(
+        nerf_run.params[net]["trunk"])
+    assert [p for p, _ in got] == [p for p, _ in want] and got
+    for (path, a), (_, b) in zip(got, want):
+      assert a.dtype == b.dtype and np.array_equal(a.view(np.uint32), b.view(np.uint32)), path
+  initial = multistyle.init_state(run.config, nerf_run.params).params
+  trainable, _ = multistyle.split_frozen(run.params)
+  start, _ = multistyle.split_frozen(initial)
+  for (path, a), (_, b) in zip(leaves_with_paths(trainable), leaves_with_paths(start)):
+    assert not np.array_equal(a, np.asarray(b)), f"{path} did not change"
+  # The checkpointed optimizer state holds nothing for the trunk.
+  ckpts = checkpoint.Checkpoints(trained)
+  raw = ckpts.restore()
+  ckpts.close()
+  opt_paths = [p for p, _ in leaves_with_paths(raw["opt_state"])]
+  assert opt_paths and not any("trunk" in p for p in opt_paths)
+
+
+def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
+  from msnerf_jax.cli.multistyle import blend  # pylint: disable=g-import-not-at-top
+  run, scene = load_run(trained), world["scene"]
+  vectors = multistyle.style_vectors(run)
+  a, b = vectors["red"], vectors["blue"]
+  styles = np.stack([a, b, blend(a, b, 0.3)])
+  c2w = scene.c2w[4]
+  sweep = multistyle.render_styles(scene, run.params, run.config, c2w, styles, chunk=64)
+  for k in range(3):
+    one = multistyle.render_styles(scene, run.params, run.config, c2w, styles[k:k + 1], chunk=64)
+    for key in ("rgb", "depth", "accumulation"):
+      np.testing.assert_allclose(sweep[key][k], one[key][0], rtol=1e-4, atol=1e-5)
+  assert np.array_equal(blend(a, b, 0.0), a) and np.array_equal(blend(a, b, 1.0), b)
+  at0 = multistyle.render_styles(scene, run.params, run.config, c2w, blend(a, b, 0.0), chunk=64)
+  at1 = multistyle.render_styles(scene, run.params, run.config, c2w, blend(a, b, 1.0), chunk=64)
+  ends = multistyle.render_styles(scene, run.params, run.config, c2w, np.stack([a, b]), chunk=64)
+  # Same style vectors, same batch shape: bit-identical images at both ends.
+  single_a = multistyle.render_styles(scene, run.params, run.config, c2w, a, chunk=64)
+  single_b = multistyle.render_styles(scene, run.params, run.config, c2w, b, chunk=64)
+  assert np.array_equal(at0["rgb"], single_a["rgb"]) and np.array_equal(at1["rgb"], single_b["rgb"])
+  np.testing.assert_allclose(ends["rgb"][0], single_a["rgb"][0], atol=1e-5)
+  assert float(np.abs(single_a["rgb"] - single_b["rgb"]).max()) > 1e-3
+
+
+def test_eval_and_render_cli(world, trained, tmp_path, capsys):
+  assert cli.main(["multistyle", "eval", "--run", trained, "--chunk", "64"]) == 0
+  out = capsys.readouterr().out
+  for name in ("red", "blue", "original", "mean PSNR"):
+    assert name in out
+  metrics = json.load(open(os.path.join(trained, "eval_val", "metrics.json")))
+  assert len(metrics["views"]) == 2 * 3
+  assert os.path.exists(os.path.join(trained, "eval_val", "targets_vs_renders.png"))
+  unseen = write_style(tmp_path / "green.png", (20, 200, 20))
+  stem = str(tmp_path / "video")
+  assert cli.main(["render", "--run", trained, "--out", stem, "--style", unseen, "--frames", "3",
+                   "--grid-steps", "3", "--grid-views", "2", "--chunk", "64"]) == 0
+  for suffix in (".mp4", ".gif", "_morph.mp4", "_morph.gif", "_grid.png"):
+    assert os.path.getsize(stem + suffix) > 0, suffix
+  grid = np.asarray(Image.open(stem + "_grid.png"))
+  assert grid.shape[:2] == (2 * 16 + 2, 3 * 16 + 2 * 2)
+  assert cli.main(["render", "--run", trained, "--out", stem + "2", "--style", "red",
+                   "--strength", "0.5", "--frames", "2", "--morph", "red", "original",
+                   "--chunk", "64"]) == 0
+  assert "strength 0.5" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _one_line_error(capsys, argv, *needles):
+  capsys.readouterr()
+  assert cli.main(argv) == 2
+  err = capsys.readouterr().err
+  assert "Traceback" not in err, err
+  err = err.replace("\r", "\n").strip().splitlines()[-1]  # after any progress bars
+  assert err.startswith("msnerf: error:"), err
+  for needle in needles:
+    assert needle in err, err
+  return err
+
+
+def test_dataset_of_another_size_or_scene_is_refused(world, tmp_path, capsys):
+  other = str(tmp_path / "small")
+  assert cli.main(["stylize-scene", "--data", world["scene_dir"], "--decoder", world["decoder"],
+                   "--styles", world["styles"][0], "--downscale", "2", "--out", other]) == 0
+  out = str(tmp_path / "run")
+  _one_line_error(capsys, ["multistyle", "train", "--nerf", world["nerf"], "--stylized", other,
+                           "--out", out, "--steps", "1"], "8x8", "16x16")
+  assert not os.path.exists(out)
+  moved = str(tmp_path / "moved")
+  scene2 = write_blender_scene(str(tmp_path / "scene2"), n_train=4, n_val=2, size=16,
+                               rng=np.random.default_rng(1))
+  meta = json.load(open(os.path.join(scene2, "transforms_train.json")))
+  meta["frames"][0]["transform_matrix"][0][3] += 0.5
+  json.dump(meta, open(os.path.join(scene2, "transforms_train.json"), "w"))
+  assert cli.main(["stylize-scene", "--data", scene2, "--decoder", world["decoder"],
+                   "--styles", world["styles"][0], "--out", moved]) == 0
+  _one_line_error(capsys, ["multistyle", "train", "--nerf", world["nerf"], "--stylized", moved,
+                           "--out", out, "--steps", "1"], "poses")
+
+
+def test_nerf_run_of_another_architecture_is_refused(world, tmp_path, capsys):
+  import shutil  # pylint: disable=g-import-not-at-top
+  bad = str(tmp_path / "nerf")
+  shutil.copytree(world["nerf"], bad)
+  run_json = os.path.join(bad, "run.json")
+  record = json.load(open(run_json))
+  record["config"]["net_width"] = 64
+  json.dump(record, open(run_json, "w"))
+  _one_line_error(capsys, ["multistyle", "train", "--nerf", bad, "--stylized", world["stylized"],
+                           "--out", str(tmp_path / "run"), "--steps", "1"],
+                  "another architecture")
+
+
+def test_unreadable_style_writes_nothing(world, tmp_path, capsys):
+  broken = tmp_path / "broken.png"
+  broken.write_bytes(open(world["styles"][0], "rb").read()[:40])
+  out = str(tmp_path / "ds")
+  _one_line_error(capsys, ["stylize-scene", "--data", world["scene_dir"], "--decoder",
+                           world["decoder"], "--styles", world["styles"][0], str(broken),
+                           "--out", out], "broken.png")
+  assert not os.path.exists(out)
+
+
+def test_unknown_style_name_at_render(trained, tmp_path, capsys):
+  _one_line_error(capsys, ["render", "--run", trained, "--out", str(tmp_path / "v"),
+                           "--style", "nope"], "nope", "red")
+
+
+# ----------------------------------------------------------------------------- devices
+
+
+TWO_DEVICES = textwrap.dedent("""
+    import os, sys
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    import jax, jax.numpy as jnp, numpy as np
+    sys.path.insert(0, {tests!r})
+    from msnerf_jax import load_run
+    from msnerf_jax.data.scene import load_scene
+    from msnerf_jax.data.stylized import load_stylized
+    from msnerf_jax.config import DataConfig, MultistyleConfig
+    from msnerf_jax.train import multistyle as ms, state as state_lib
+    assert jax.local_device_count() == 2
+    nerf_run = load_run({nerf!r})
+    data = load_stylized({stylized!r}, progress=False)
+    scene, _ = load_scene(DataConfig(path={scene!r}))
+    config = MultistyleConfig(nerf=nerf_run.config, batch_rays=32, style_hidden=32, style_hidden2=16,
+                              density_aware={density_aware})
+    images = jnp.asarray(np.moveaxis(data.images[:, :4], 0, 3))
+    batch = ms.sample_batch(jax.random.PRNGKey(3), images, jnp.asarray(scene.c2w[:4]),
+                            jnp.asarray(scene.K), config, scene)
+    fresh = lambda: ms.init_state(config, nerf_run.params)
+    one, s1 = ms.compile_train_step(config, data.vectors, True, 1)(fresh(), batch)
+    two, s2 = ms.compile_train_step(config, data.vectors, True, 2)(
+        state_lib.replicate(fresh()), state_lib.shard(batch, 2))
+    two = state_lib.unreplicate(two)
+    start = fresh().params
+    leaves = jax.tree_util.tree_leaves
+    worst = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+                for a, b in zip(leaves(one.params), leaves(two.params)))
+    moved = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+                for a, b in zip(leaves(one.params), leaves(start)))
+    print("worst", worst, "moved", moved)
+    assert moved > 1e-4 and worst < 1e-3 * moved, (worst, moved)
+    assert abs(float(s1["loss"]) - float(np.asarray(s2["loss"])[0])) < 1e-6
+""")
+
+
+def test_two_devices_give_the_same_update_as_one(world):
+  code = TWO_DEVICES.format(tests=TESTS, nerf=world["nerf"], stylized=world["stylized"],
+                            scene=world["scene_dir"], density_aware=True)
+  result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+  assert result.returncode == 0, result.stderr[-3000:]
