@@ -171,6 +171,7 @@ class MultistyleConfig:
   style_dim: int = 1024
   style_hidden: int = 1024  # style MLP: style_dim -> style_hidden -> style_hidden2 -> out.
   style_hidden2: int = 512
+  normalize_styles: bool = True  # standardise each style vector before the style MLPs.
   rgb_extra_layers: int = 0  # extra W/2 layers in the new rgb MLP (W -> W/2 -> ... -> 3).
   density_extra_layers: int = 0  # extra W layers in the new density MLP (2W -> W -> ... -> 1).
   batch_rays: int = 1024  # pixels per step; each supervises every style (standard variant).

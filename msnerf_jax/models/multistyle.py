@@ -21,11 +21,20 @@ from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
 
 
 class StyleMLP(nn.Module):
-  """Dense layers with ReLU between them (none after the last): [..., in] -> [..., features[-1]]."""
+  """Dense layers with ReLU between them (none after the last): [..., in] -> [..., features[-1]].
+
+  With `normalize`, the input is first standardised over its features (a LayerNorm without
+  parameters). Style vectors are VGG statistics with entries up to ~10 and norms ~100; fed
+  raw, Adam's first steps on the 1024-wide layer move every output by several units (all M
+  inputs push the same way) and kill the colour head's ReLUs.
+  """
   features: Sequence[int]
+  normalize: bool = True
 
   @nn.compact
   def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
+    if self.normalize:
+      x = nn.LayerNorm(use_scale=False, use_bias=False, name="norm")(x)
     for i, width in enumerate(self.features):
       x = nn.Dense(width, name=f"dense_{i}")(x)
       if i < len(self.features) - 1:
@@ -69,17 +78,18 @@ class MultiStyleMLP(nn.Module):
   style_hidden: Sequence[int] = (1024, 512)
   rgb_extra_layers: int = 0
   density_extra_layers: int = 0
+  normalize_styles: bool = True
 
   def setup(self):
     w = self.trunk.width
-    self.style_rgb = StyleMLP((*self.style_hidden, w // 2))
+    self.style_rgb = StyleMLP((*self.style_hidden, w // 2), self.normalize_styles)
     self.rgb_hidden = ConcatDense(w // 2, w // 2, w // 2)
     self.rgb_extra = [nn.Dense(w // 2, name=f"rgb_extra_{i}") for i in range(self.rgb_extra_layers)]
     self.rgb_out = nn.Dense(3)
     if self.density_aware:
       hidden_dim = w + (self.trunk.pos_freqs * 6 + 3 if self.trunk.skip_layer == self.trunk.depth - 1
                         else 0)
-      self.style_density = StyleMLP((*self.style_hidden, w))
+      self.style_density = StyleMLP((*self.style_hidden, w), self.normalize_styles)
       self.density_hidden = ConcatDense(w, hidden_dim, w)
       self.density_extra = [nn.Dense(w, name=f"density_extra_{i}")
                             for i in range(self.density_extra_layers)]
@@ -130,7 +140,8 @@ def multistyle_mlp(config) -> MultiStyleMLP:
                        style_dim=config.style_dim,
                        style_hidden=(config.style_hidden, config.style_hidden2),
                        rgb_extra_layers=config.rgb_extra_layers,
-                       density_extra_layers=config.density_extra_layers)
+                       density_extra_layers=config.density_extra_layers,
+                       normalize_styles=config.normalize_styles)
 
 
 def init_multistyle_params(config, key: jax.Array,
