@@ -318,3 +318,17 @@ def test_two_devices_give_the_same_update_as_one(world):
   result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)
   assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_evaluate_cli_writes_tables(world, trained, tmp_path, capsys):
+  out = str(tmp_path / "eval")
+  assert cli.main(["evaluate", "--run", trained, "--styles", "red", "--frames", "9",
+                   "--chunk", "64", "--out", out]) == 0
+  rows = json.load(open(os.path.join(out, "results.json")))
+  assert [r["method"] for r in rows][1] == "adain-per-frame" and len(rows) == 2
+  for row in rows:
+    for key in ("rmse_k1", "rmse_k7", "lpips_k1", "style_adain", "style_gram"):
+      assert np.isfinite(row[key]) and row[key] >= 0, (key, row)
+  assert open(os.path.join(out, "results.md")).read().startswith("| method")
+  assert os.path.getsize(os.path.join(out, "frames.png")) > 0
+  assert "adain-per-frame" in capsys.readouterr().out

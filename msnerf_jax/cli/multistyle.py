@@ -72,6 +72,23 @@ def register(commands, formatter):
   p.set_defaults(func=cmd_eval)
 
   p = commands.add_parser(
+      "evaluate", formatter_class=formatter,
+      help="consistency and style metrics of a multi-style run vs per-frame AdaIN",
+      description="Renders the run's camera path in each style and compares it with per-frame "
+                  "AdaIN on the NeRF's renders: short/long-range warped RMSE and LPIPS (k = 1, "
+                  "7) and the style distance to the style image. Writes results.md/.csv/.json "
+                  "and frames.png to --out.")
+  p.add_argument("--run", required=True, help="multi-style run folder")
+  p.add_argument("--styles", nargs="+", default=None, metavar="NAME",
+                 help="training styles to evaluate (default: all stylized ones)")
+  p.add_argument("--decoder", default=None,
+                 help="AdaIN run for the per-frame baseline (default: the dataset's)")
+  p.add_argument("--frames", type=int, default=40, help="frames of the camera path")
+  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  p.add_argument("--out", required=True, help="folder for the tables and figures")
+  p.set_defaults(func=cmd_evaluate)
+
+  p = commands.add_parser(
       "render", formatter_class=formatter,
       help="videos and an interpolation grid of a run along its render path",
       description="For a multi-style run, writes OUT.mp4/.gif in one style, OUT_morph.mp4/.gif "
@@ -119,7 +136,8 @@ def cmd_stylize_scene(args):
       lambda view, style, alpha: stylize_lib.stylize_image(decoder, encoder, view, [style],
                                                            alpha=alpha),
       lambda image: stylized_lib.style_vector_of(encoder, image),
-      args.styles, alphas, args.include_original, args.out)
+      args.styles, alphas, args.include_original, args.out,
+      decoder=args.decoder)
   print_summary("stylized dataset done", [
       ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
       ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),
@@ -278,3 +296,17 @@ def cmd_render(args):
       ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
       ("frames", f"{len(poses)} of {scene.width}x{scene.height}"),
       ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])
+
+
+def cmd_evaluate(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import evaluate
+  if args.frames < 9:
+    raise UserError(f"--frames {args.frames}: need at least 9 (long range compares t, t + 7)")
+  if os.path.isfile(args.out):
+    raise UserError(f"{args.out}: is a file, expected a folder")
+  result = evaluate.evaluate_run(args.run, args.out, args.styles, args.decoder, args.frames,
+                                 args.chunk)
+  evaluate.print_table(result["rows"])
+  print_summary("evaluation done", [("time", f"{result['seconds']:.0f} s"),
+                                    ("written", ", ".join(result["files"]))])

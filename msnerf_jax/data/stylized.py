@@ -69,7 +69,8 @@ def _read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
 
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                   style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
-                  include_original: bool, out_dir: str, progress: bool = True) -> Dict[str, Any]:
+                  include_original: bool, out_dir: str, progress: bool = True,
+                  decoder: Optional[str] = None) -> Dict[str, Any]:
   """Writes (or completes) the stylized dataset of a scene.
 
   Args:
@@ -80,6 +81,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     include_original: add the unstylized views as one more style named "original", whose
       vector is the mean style vector of the training views.
     out_dir: the dataset folder.
+    decoder: the AdaIN run folder behind stylize_fn (recorded for evaluations).
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
@@ -102,7 +104,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       "data": config_lib.to_dict(data_config), "height": scene.height, "width": scene.width,
       "n_views": len(scene.images), "splits": {k: [int(i) for i in v]
                                                for k, v in scene.splits.items()},
-      "views": [os.path.basename(p) for p in scene.image_paths], "styles": styles, "done": []}
+      "views": [os.path.basename(p) for p in scene.image_paths], "styles": styles, "done": [],
+      "decoder": os.path.abspath(decoder) if decoder else None}
   path = os.path.join(out_dir, MANIFEST)
   if os.path.exists(out_dir) and not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: is a file, expected a folder")
