@@ -157,7 +157,8 @@ def init_multistyle_params(config, key: jax.Array,
   for net, k in zip(("coarse", "fine"), jax.random.split(key)):
     params[net] = dict(init(k)["params"])
     if nerf_params is not None:
-      params[net]["trunk"] = jax.tree_util.tree_map(jnp.asarray, nerf_params[net]["trunk"])
+      # A copy: training donates its state, and must not delete the caller's arrays.
+      params[net]["trunk"] = jax.tree_util.tree_map(jnp.array, nerf_params[net]["trunk"])
       if config.density_aware:
         params[net] = start_from_density(params[net])
   return params
