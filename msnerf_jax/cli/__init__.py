@@ -16,8 +16,10 @@ class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescription
 def build_parser() -> argparse.ArgumentParser:
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli import adain as adain_cli
+  from msnerf_jax.cli import demo as demo_cli
   from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
+  from msnerf_jax.cli import pipeline as pipeline_cli
   parser = argparse.ArgumentParser(
       prog="msnerf", formatter_class=_Formatter,
       description="Multi-style NeRF with AdaIN: learn a scene once, render it in any style.")
@@ -26,6 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
   nerf_cli.register(commands, _Formatter)
   adain_cli.register(commands, _Formatter)
   multistyle_cli.register(commands, _Formatter)
+  pipeline_cli.register(commands, _Formatter)
+  demo_cli.register(commands, _Formatter)
   return parser
 
 

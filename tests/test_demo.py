@@ -1,0 +1,97 @@
+"""`msnerf demo` end to end at a tiny size (every stage, real AdaIN training included), its
+caching (a re-run skips every finished stage), and the procedural scene and styles."""
+
+import json
+import os
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+from PIL import Image
+
+from msnerf_jax import cli, demo
+from msnerf_jax.config import DataConfig
+from msnerf_jax.data.scene import load_scene
+
+TINY = ["--size", "16", "--views", "4", "--adain-steps", "2", "--adain-size", "16",
+        "--nerf-steps", "4", "--nerf-batch-rays", "64", "--ms-steps", "3", "--ms-batch-rays", "32",
+        "--frames", "4", "--grid-views", "2", "--no-progress"]
+OUTPUTS = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
+
+
+def test_scene_and_styles_are_deterministic_blender_data(tmp_path):
+  a = demo.write_scene(str(tmp_path / "a"), size=24, n_train=3, n_val=2, seed=3, progress=False)
+  b = demo.write_scene(str(tmp_path / "b"), size=24, n_train=3, n_val=2, seed=3, progress=False)
+  for rel in ("train/r_0.png", "val/r_1.png", "transforms_train.json"):
+    assert open(os.path.join(a, rel), "rb").read() == open(os.path.join(b, rel), "rb").read()
+  scene, data = load_scene(DataConfig(path=a))
+  assert data.format == "blender" and scene.images.shape == (5, 24, 24, 3)
+  assert (scene.near, scene.far) == (2.0, 6.0)
+  cover = scene.alphas.mean() / 255
+  assert 0.1 < cover < 0.9  # objects in front of a transparent background
+  assert scene.images.std() > 0.1  # textured, not flat
+  np.testing.assert_allclose(np.linalg.norm(scene.c2w[:, :, 3], axis=-1), 4.0, atol=1e-5)
+  paths = demo.write_styles(str(tmp_path / "styles"), size=64, seed=0)
+  pictures = [np.asarray(Image.open(p).convert("RGB"), np.float32) for p in paths]
+  assert all(p.shape == (64, 64, 3) for p in pictures)
+  means = np.stack([p.mean((0, 1)) for p in pictures])
+  assert np.abs(means[:, None] - means[None]).sum(-1)[np.triu_indices(3, 1)].min() > 20
+
+
+def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
+  out = str(tmp_path / "demo")
+  assert cli.main(["demo", "--out", out, *TINY]) == 0
+  first = capsys.readouterr().out
+  for stage in ("adain", "nerf", "stylized", "multistyle", "renders"):
+    assert f"{stage}: done in" in first
+  renders = os.path.join(out, "renders")
+  for name in OUTPUTS:
+    assert os.path.getsize(os.path.join(renders, name)) > 0
+  grid = np.asarray(Image.open(os.path.join(renders, "grid.png")))
+  n_styles = 4  # stripes, mosaic, swirl, original
+  assert grid.shape == (n_styles * 16 + (n_styles - 1) * 2, 2 * 16 + 2, 3)
+  morph = imageio.mimread(os.path.join(renders, "morph.gif"))
+  assert len(morph) == 4 and morph[0].shape[:2] == (16, 16)
+  assert np.ptp(np.stack(morph).astype(np.float32)) > 0
+  reader = imageio.get_reader(os.path.join(renders, "styles.mp4"))
+  frames = [f for f in reader]
+  reader.close()
+  assert len(frames) == 4 and frames[0].shape[:2] == (16, n_styles * 16 + (n_styles - 1) * 2)
+  summary = json.load(open(os.path.join(out, "summary.json")))
+  assert [s["status"] for s in summary["stages"]] == ["ran"] * 5
+  assert "adain" in open(os.path.join(out, "summary.txt")).read()
+
+  mtimes = {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS}
+  assert cli.main(["demo", "--out", out, *TINY]) == 0
+  second = capsys.readouterr().out
+  assert second.count("already complete, skipped") == 5
+  assert {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS} == mtimes
+  summary = json.load(open(os.path.join(out, "summary.json")))
+  assert [s["status"] for s in summary["stages"]] == ["skipped"] * 5
+
+
+def test_pipeline_bad_input_is_one_line_error(tmp_path, capsys):
+  style = demo.write_styles(str(tmp_path / "styles"), size=32)[0]
+  assert cli.main(["pipeline", "--data", str(tmp_path / "nope"), "--styles", style,
+                   "--out", str(tmp_path / "o")]) == 2
+  assert "nope: no such scene folder" in capsys.readouterr().err
+  scene = demo.write_scene(str(tmp_path / "scene"), size=16, n_train=2, n_val=1, progress=False)
+  assert cli.main(["pipeline", "--data", scene, "--styles", str(tmp_path / "missing.png"),
+                   "--out", str(tmp_path / "o")]) == 2
+  assert "missing.png: no such style image" in capsys.readouterr().err
+  assert not os.path.exists(tmp_path / "o")
+
+
+@pytest.mark.parametrize("verb", ["pipeline", "demo"])
+def test_help_describes_every_option_with_its_default(verb):
+  import argparse  # pylint: disable=g-import-not-at-top
+  commands = next(a for a in cli.build_parser()._actions  # pylint: disable=protected-access
+                  if isinstance(a, argparse._SubParsersAction))  # pylint: disable=protected-access
+  parser = commands.choices[verb]
+  text = " ".join(parser.format_help().split())
+  for action in parser._actions:  # pylint: disable=protected-access
+    if action.dest == "help":
+      continue
+    assert action.help, action.dest
+    if not action.required:
+      assert f"{' '.join(action.help.split())} (default: " in text, action.dest
