@@ -2,7 +2,11 @@
 against this machine's dense float32 matmul rate, all measured in one run.
 
 Usage:
-  python experiments/bench_throughput.py [--presets paper cpu] [--steps 5] [--render-rays 16384]
+  python experiments/bench_throughput.py [--presets paper cpu] [--steps 5] [--render-rays 4096]
+
+On a shared machine pin it to one core and give XLA one thread, e.g.
+  XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \
+    taskset -c 1 python experiments/bench_throughput.py
 
 Target (issue 2): the `paper` training step's MLP FLOP rate >= 70% of the matmul rate.
 MLP FLOPs per training step = 3 x (forward matmul FLOPs per sample) x samples, where the
@@ -36,13 +40,14 @@ def timed(fn, repeats):
 
 
 def matmul_rate(repeats=5):
-  """Dense float32 matmul FLOP/s: the best over a few large shapes."""
+  """Dense float32 matmul FLOP/s: the best over a few large shapes (each one printed)."""
   best = 0.0
   for m, k, n in ((4096, 4096, 4096), (65536, 256, 256), (8192, 1024, 1024)):
     a = jax.random.normal(jax.random.PRNGKey(0), (m, k), jnp.float32)
     b = jax.random.normal(jax.random.PRNGKey(1), (k, n), jnp.float32)
     f = jax.jit(jnp.matmul)
     t, _ = timed(lambda: f(a, b), repeats)
+    print(f"  matmul {m}x{k} @ {k}x{n}: {2 * m * k * n / t / 1e9:.1f} GFLOP/s")
     best = max(best, 2 * m * k * n / t)
   return best
 
@@ -64,13 +69,14 @@ def main():
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--presets", nargs="+", default=["paper", "cpu"])
   parser.add_argument("--steps", type=int, default=5, help="timed training steps per preset")
-  parser.add_argument("--render-rays", type=int, default=16384)
+  parser.add_argument("--render-rays", type=int, default=4096)
   args = parser.parse_args()
 
   print(f"# {platform.machine()} {os.cpu_count()} cores, jax {jax.__version__}, "
         f"devices {jax.devices()}")
   peak = matmul_rate()
-  print(f"dense f32 matmul rate: {peak / 1e9:.1f} GFLOP/s")
+  print(f"dense f32 matmul rate (best shape): {peak / 1e9:.1f} GFLOP/s, "
+        f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}")
   for preset in args.presets:
     config = nerf_preset(preset, "blender")
     state = nerf.init_state(config)
@@ -83,6 +89,9 @@ def main():
       return stats
 
     best, mean = timed(run_step, args.steps)
+    if preset == "paper":  # the machine may be shared: re-measure, keep the higher (stricter) rate.
+      peak = max(peak, matmul_rate())
+      print(f"dense f32 matmul rate re-measured after the paper steps; using {peak / 1e9:.1f} GFLOP/s")
     samples = config.batch_rays * (2 * config.n_coarse + config.n_fine)
     mlp_flops = 3 * mlp_flops_per_sample(config) * samples
     params = holder["state"].params
@@ -96,7 +105,8 @@ def main():
     print(f"[{preset}] train step: {best * 1e3:.0f} ms best, {mean * 1e3:.0f} ms mean -> "
           f"{config.batch_rays / best:,.0f} rays/s")
     print(f"[{preset}] MLP: {mlp_flops / 1e9:.1f} GFLOP per step, {mlp_flops / best / 1e9:.1f} "
-          f"GFLOP/s = {100 * mlp_flops / best / peak:.0f}% of the matmul rate")
+          f"GFLOP/s = {100 * mlp_flops / best / peak:.0f}% of the matmul rate "
+          f"(mean step: {100 * mlp_flops / mean / peak:.0f}%)")
     print(f"[{preset}] render: {args.render_rays / render_best:,.0f} rays/s "
           f"(chunk {config.render_chunk})")
 
