@@ -88,22 +88,23 @@ def warp(frame_s, depth_t, depth_s, acc_t, acc_s, c2w_t, c2w_s, K, ndc: bool = F
 
 def consistency(frames: Sequence[np.ndarray], depths: Sequence[np.ndarray],
                 accumulations: Sequence[np.ndarray], poses: np.ndarray, K: np.ndarray,
-                ndc: bool, gap: int, lpips_fn=None, depth_tolerance: float = 0.05
-                ) -> Dict[str, float]:
+                ndc: bool, gap: int, lpips_fn=None, depth_tolerance: float = 0.05,
+                batch: int = 8) -> Dict[str, float]:
   """Warped RMSE (and LPIPS) between frames t and t + gap along a path, averaged over t.
 
   Args:
     frames: T images [H, W, 3] in [0, 1]; depths, accumulations: T maps [H, W] (the
       geometry used for the warp: for every method compared, the same radiance field's);
     poses: [T, 3, 4]; K: [3, 3]; gap: k (1 short range, 7 long range).
-    lpips_fn: optional (image [H, W, 3], target [H, W, 3]) -> LPIPS.
+    lpips_fn: optional (images [B, H, W, 3], targets [B, H, W, 3]) -> LPIPS [B] (called on
+      `batch` pairs at a time).
   Returns:
     {"rmse", "lpips" (when lpips_fn), "coverage" (mean fraction of valid pixels), "pairs"}.
   """
   chex.assert_equal(len(frames), len(poses))
   if len(frames) <= gap:
     raise ValueError(f"need more than {gap} frames for gap {gap}, got {len(frames)}")
-  rmses, lpipses, coverage = [], [], []
+  rmses, coverage, warped_pairs, targets = [], [], [], []
   for t in range(len(frames) - gap):
     s = t + gap
     warped, mask = warp(jnp.asarray(frames[s]), jnp.asarray(depths[t]), jnp.asarray(depths[s]),
@@ -118,10 +119,13 @@ def consistency(frames: Sequence[np.ndarray], depths: Sequence[np.ndarray],
     rmses.append(float(np.sqrt(np.mean(diff ** 2))))
     if lpips_fn is not None:
       m = mask[..., None]
-      lpipses.append(float(lpips_fn(np.where(m, np.asarray(warped), 0.0),
-                                    np.where(m, np.asarray(frames[t]), 0.0))))
+      warped_pairs.append(np.where(m, np.asarray(warped), 0.0).astype(np.float32))
+      targets.append(np.where(m, np.asarray(frames[t]), 0.0).astype(np.float32))
   out = {"rmse": float(np.mean(rmses)) if rmses else float("nan"),
          "coverage": float(np.mean(coverage)), "pairs": len(rmses)}
   if lpips_fn is not None:
-    out["lpips"] = float(np.mean(lpipses)) if lpipses else float("nan")
+    scores = [np.asarray(lpips_fn(np.stack(warped_pairs[i:i + batch]),
+                                  np.stack(targets[i:i + batch])))
+              for i in range(0, len(warped_pairs), batch)]
+    out["lpips"] = float(np.mean(np.concatenate(scores))) if scores else float("nan")
   return out

@@ -42,7 +42,7 @@ def score(frames, depths, accs, poses, K, ndc, style_image, encoder, lpips_param
           ) -> Dict[str, float]:
   """Consistency at k = 1 and 7 and style distances of one rendered path."""
   import jax.numpy as jnp  # pylint: disable=g-import-not-at-top
-  lp = lambda a, b: float(metrics.lpips(lpips_params, jnp.asarray(a), jnp.asarray(b)))
+  lp = lambda a, b: np.asarray(metrics.lpips(lpips_params, jnp.asarray(a), jnp.asarray(b)))
   row = {}
   for k in (1, 7):
     c = consistency_lib.consistency(frames, depths, accs, poses, K, ndc, k, lp)
@@ -98,6 +98,9 @@ def evaluate_run(run_dir: str, out_dir: str, styles: Optional[Sequence[str]] = N
     ours = [s["rgb"][m] for s in swept]
     per_frame = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style],
                                            alpha=sources[name]["alpha"]) for b in base]
+    if scene.white_background:  # as the stylized training views: background back to white.
+      per_frame = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
+                   for f, b in zip(per_frame, base)]
     for label, frames_, geometry in (
         (method, ours, [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]}
                         for s in swept]),

@@ -22,3 +22,31 @@ def output_stem(path: str) -> str:
   """FILE, FILE.mp4 or FILE.gif -> FILE (the stem the .mp4/.gif/_*.png outputs share)."""
   import os  # pylint: disable=g-import-not-at-top
   return os.path.splitext(path)[0] if path.endswith((".mp4", ".gif", ".png")) else path
+
+
+def load_run_and_scene(run_dir: str, kind: str):
+  """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
+  # pylint: disable=g-import-not-at-top
+  import os
+  from msnerf_jax import config as config_lib
+  from msnerf_jax.checkpoint import RUN_FILE, load_run
+  from msnerf_jax.data.scene import load_scene
+  from msnerf_jax.errors import UserError
+  run = load_run(run_dir)
+  if run.kind != kind:
+    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a {kind!r} run")
+  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
+                              os.path.join(run_dir, RUN_FILE))
+  scene, _ = load_scene(data)
+  return run, scene
+
+
+def print_training_summary(title: str, summary, what: str, next_hint: str) -> None:
+  """The end-of-training block of a trainer's summary dict (see train.loop.fit)."""
+  print_summary(title, [
+      ("run", summary["run_dir"]),
+      ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
+      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
+      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
+                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB{what}"),
+      ("next", next_hint)])

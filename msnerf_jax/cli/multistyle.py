@@ -7,7 +7,8 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import output_stem, path_poses, print_summary
+from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
+                                   print_training_summary)
 from msnerf_jax.errors import UserError
 
 _DEFAULTS = config_lib.MultistyleConfig()
@@ -164,28 +165,14 @@ def cmd_train(args):
   print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
         f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")
   summary = multistyle.train(config, args.nerf, stylized, args.out, n_devices=args.devices)
-  print_summary("multi-style training done", [
-      ("run", summary["run_dir"]),
-      ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
-      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
-      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
-                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB (all styles)"),
-      ("next", f"msnerf multistyle eval --run {args.out}; msnerf render --run {args.out} "
-               f"--out {os.path.join(args.out, 'video')}")])
+  print_training_summary("multi-style training done", summary, " (all styles)",
+                         f"msnerf multistyle eval --run {args.out}; msnerf render --run "
+                         f"{args.out} --out {os.path.join(args.out, 'video')}")
 
 
 def load_multistyle(run_dir):
-  """(run, scene) of a multi-style run folder."""
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.checkpoint import load_run
-  from msnerf_jax.data.scene import load_scene
-  run = load_run(run_dir)
-  if run.kind != "multistyle":
-    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a multi-style run")
-  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
-                              os.path.join(run_dir, "run.json"))
-  scene, _ = load_scene(data)
-  return run, scene
+  """(run, scene) of a multistyle run folder."""
+  return load_run_and_scene(run_dir, "multistyle")
 
 
 def cmd_eval(args):
@@ -232,7 +219,11 @@ def resolve_style(spec: str, vectors, encoder_cache) -> np.ndarray:
     from msnerf_jax.models import vgg
     if "encoder" not in encoder_cache:
       encoder_cache["encoder"] = vgg.load_vgg_params()
-    return style_vector_of(encoder_cache["encoder"], images_lib.read_image(spec, max_side=1024))
+    image = images_lib.read_image(spec, max_side=1024)
+    if min(image.shape[:2]) < 16:
+      raise UserError(f"{spec}: style image is {image.shape[1]}x{image.shape[0]}, need at least "
+                      "16x16")
+    return style_vector_of(encoder_cache["encoder"], image)
   raise UserError(f"style {spec!r}: neither a training style ({', '.join(vectors)}) nor an "
                   "image file")
 

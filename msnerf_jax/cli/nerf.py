@@ -1,6 +1,5 @@
 """`msnerf nerf train | eval | render`: the geometry stage."""
 
-import dataclasses
 import json
 import os
 import time
@@ -8,7 +7,8 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import output_stem, path_poses, print_summary
+from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
+                                   print_training_summary)
 from msnerf_jax.errors import UserError
 
 
@@ -73,27 +73,14 @@ def cmd_train(args):
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; preset {args.preset}")
   summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices)
-  print_summary("NeRF training done", [
-      ("run", summary["run_dir"]),
-      ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
-      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
-      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
-                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB"),
-      ("next", f"msnerf nerf eval --run {args.out}; msnerf nerf render --run {args.out} "
-               f"--out {os.path.join(args.out, 'video')}")])
+  print_training_summary("NeRF training done", summary, "",
+                         f"msnerf nerf eval --run {args.out}; msnerf nerf render --run "
+                         f"{args.out} --out {os.path.join(args.out, 'video')}")
 
 
 def _load(run_dir):
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.checkpoint import load_run
-  from msnerf_jax.data.scene import load_scene
-  run = load_run(run_dir)
-  if run.kind != "nerf":
-    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a NeRF run")
-  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
-                              os.path.join(run_dir, "run.json"))
-  scene, _ = load_scene(data)
-  return run, scene
+  """(run, scene) of a nerf run folder."""
+  return load_run_and_scene(run_dir, "nerf")
 
 
 def cmd_eval(args):

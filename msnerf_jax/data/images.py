@@ -187,3 +187,28 @@ def stack_same_size(images: Sequence[np.ndarray], paths: Sequence[str]) -> np.nd
           f"{path}: image is {image.shape[1]}x{image.shape[0]}, expected {shape[1]}x{shape[0]} "
           f"like {paths[0]} (all views of a scene must have one size)")
   return np.stack(images)
+
+
+def write_npy(path: str, array: np.ndarray) -> None:
+  """Saves an array as .npy atomically (no pickles)."""
+  import io  # pylint: disable=g-import-not-at-top
+  buffer = io.BytesIO()
+  np.save(buffer, np.asarray(array), allow_pickle=False)
+  atomic_write_bytes(path, buffer.getvalue())
+
+
+def read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+  """np.load without pickles, as float32; UserError naming the file unless it holds a finite
+  array of `shape` (None = any size along that axis)."""
+  try:
+    array = np.load(path, allow_pickle=False)
+  except FileNotFoundError:
+    raise UserError(f"{path}: missing") from None
+  except (ValueError, OSError, EOFError) as e:
+    raise UserError(f"{path}: not a valid .npy array ({e})") from None
+  if array.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, array.shape)):
+    raise UserError(f"{path}: array of shape {array.shape}, expected "
+                    f"{tuple('?' if s is None else s for s in shape)}")
+  if not np.all(np.isfinite(array)):
+    raise UserError(f"{path}: holds NaN or inf")
+  return array.astype(np.float32)

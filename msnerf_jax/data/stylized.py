@@ -44,29 +44,6 @@ def _write_json(path: str, value: Any) -> None:
   images_lib.atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
 
 
-def _write_npy(path: str, array: np.ndarray) -> None:
-  import io  # pylint: disable=g-import-not-at-top
-  buffer = io.BytesIO()
-  np.save(buffer, np.asarray(array), allow_pickle=False)
-  images_lib.atomic_write_bytes(path, buffer.getvalue())
-
-
-def _read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
-  """np.load without pickles; UserError naming the file unless it has `shape` (None = any)."""
-  try:
-    array = np.load(path, allow_pickle=False)
-  except FileNotFoundError:
-    raise UserError(f"{path}: missing") from None
-  except (ValueError, OSError, EOFError) as e:
-    raise UserError(f"{path}: not a valid .npy array ({e})") from None
-  if array.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, array.shape)):
-    raise UserError(f"{path}: array of shape {array.shape}, expected "
-                    f"{tuple('?' if s is None else s for s in shape)}")
-  if not np.all(np.isfinite(array)):
-    raise UserError(f"{path}: holds NaN or inf")
-  return array.astype(np.float32)
-
-
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                   style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
                   include_original: bool, out_dir: str, progress: bool = True,
@@ -100,6 +77,10 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   # Read every style image first: a bad one stops the run before anything is written.
   pictures = {s["name"]: images_lib.read_image(s["source"], max_side=1024) for s in styles
               if s["source"]}
+  for s in styles:
+    shape = pictures[s["name"]].shape if s["source"] else (16, 16)
+    if min(shape[:2]) < 16:
+      raise UserError(f"{s['source']}: style image is {shape[1]}x{shape[0]}, need at least 16x16")
   manifest = {
       "data": config_lib.to_dict(data_config), "height": scene.height, "width": scene.width,
       "n_views": len(scene.images), "splits": {k: [int(i) for i in v]
@@ -119,7 +100,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     manifest["done"] = [n for n in saved["done"] if n in names]
   try:
     os.makedirs(out_dir, exist_ok=True)
-    _write_npy(os.path.join(out_dir, POSES), scene.c2w)
+    images_lib.write_npy(os.path.join(out_dir, POSES), scene.c2w)
     _write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
@@ -135,7 +116,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       vector = np.mean([np.asarray(style_vector_fn(scene.images[i])) for i in train], axis=0)
     else:
       vector = np.asarray(style_vector_fn(pictures[name]))
-    _write_npy(os.path.join(out_dir, name, VECTOR), vector)
+    images_lib.write_npy(os.path.join(out_dir, name, VECTOR), vector)
     for i in tqdm(range(len(scene.images)), desc=f"stylize {name}", disable=not progress,
                   dynamic_ncols=True):
       target = view_file(out_dir, name, i)
@@ -200,8 +181,8 @@ def load_stylized(out_dir: str, progress: bool = True) -> StylizedData:
     raise UserError(f"{out_dir}: styles {', '.join(missing)} are not finished; re-run the "
                     "same `msnerf stylize-scene` command to complete them")
   n, h, w = manifest["n_views"], manifest["height"], manifest["width"]
-  c2w = _read_npy(os.path.join(out_dir, POSES), (n, 3, 4))
-  vectors = np.stack([_read_npy(os.path.join(out_dir, m, VECTOR), (1024,)) for m in names])
+  c2w = images_lib.read_npy(os.path.join(out_dir, POSES), (n, 3, 4))
+  vectors = np.stack([images_lib.read_npy(os.path.join(out_dir, m, VECTOR), (1024,)) for m in names])
   images = np.empty((len(names), n, h, w, 3), np.uint8)
   for m, name in enumerate(names):
     for i in tqdm(range(n), desc=f"loading {name}", disable=not progress, leave=False):

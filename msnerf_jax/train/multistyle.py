@@ -203,23 +203,14 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
 
 
 def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
-  import io  # pylint: disable=g-import-not-at-top
-  buffer = io.BytesIO()
-  np.save(buffer, np.asarray(vectors, np.float32), allow_pickle=False)
-  images_lib.atomic_write_bytes(os.path.join(run_dir, STYLE_VECTORS), buffer.getvalue())
+  images_lib.write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
 
 
 def style_vectors(run: ckpt_lib.Run) -> Dict[str, np.ndarray]:
   """name -> [1024] vector of every training style of a multi-style run."""
-  path = os.path.join(run.run_dir, STYLE_VECTORS)
-  try:
-    vectors = np.load(path, allow_pickle=False)
-  except (OSError, ValueError) as e:
-    raise UserError(f"{path}: unreadable ({e})") from None
   names = run.record.get("styles", [])
-  if vectors.shape != (len(names), run.config.style_dim):
-    raise UserError(f"{path}: shape {vectors.shape}, expected ({len(names)}, "
-                    f"{run.config.style_dim}) for styles {names}")
+  vectors = images_lib.read_npy(os.path.join(run.run_dir, STYLE_VECTORS),
+                                (len(names), run.config.style_dim))
   return dict(zip(names, vectors))
 
 
