@@ -16,7 +16,7 @@ from PIL import Image
 
 from msnerf_jax import checkpoint, cli, load_run
 from msnerf_jax import config as config_lib
-from msnerf_jax.config import DataConfig, MultistyleConfig
+from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.models import decoder
@@ -69,13 +69,28 @@ def world(tmp_path_factory):
           "styles": styles, "decoder": dec, "stylized": stylized}
 
 
-@pytest.fixture(scope="module", params=[False, True], ids=["standard", "density_aware"])
-def trained(world, request):
-  run = str(world["root"] / f"ms_{request.param}")
+def _train(world, density_aware):
+  run = str(world["root"] / f"ms_{density_aware}")
   argv = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
           "--out", run, "--steps", "3", "--batch-rays", "32", "--checkpoint-every", "3"]
-  assert cli.main(argv + (["--density-aware"] if request.param else [])) == 0
+  assert cli.main(argv + (["--density-aware"] if density_aware else [])) == 0
   return run
+
+
+@pytest.fixture(scope="module")
+def trained_standard(world):
+  return _train(world, False)
+
+
+@pytest.fixture(scope="module")
+def trained_density(world):
+  return _train(world, True)
+
+
+@pytest.fixture(params=["standard", "density"])
+def trained(request):
+  """Each multi-style variant, trained 3 steps (once per module)."""
+  return request.getfixturevalue(f"trained_{request.param}")
 
 
 # ----------------------------------------------------------------------------- the model
@@ -188,7 +203,8 @@ def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, traine
   assert float(np.abs(single_a["rgb"] - single_b["rgb"]).max()) > 1e-3
 
 
-def test_eval_and_render_cli(world, trained, tmp_path, capsys):
+def test_eval_and_render_cli(trained_density, tmp_path, capsys):
+  trained = trained_density
   assert cli.main(["multistyle", "eval", "--run", trained, "--chunk", "64"]) == 0
   out = capsys.readouterr().out
   for name in ("red", "blue", "original", "mean PSNR"):
@@ -268,7 +284,8 @@ def test_unreadable_style_writes_nothing(world, tmp_path, capsys):
   assert not os.path.exists(out)
 
 
-def test_unknown_style_name_at_render(trained, tmp_path, capsys):
+def test_unknown_style_name_at_render(trained_standard, tmp_path, capsys):
+  trained = trained_standard
   _one_line_error(capsys, ["render", "--run", trained, "--out", str(tmp_path / "v"),
                            "--style", "nope"], "nope", "red")
 
@@ -320,7 +337,8 @@ def test_two_devices_give_the_same_update_as_one(world):
   assert result.returncode == 0, result.stderr[-3000:]
 
 
-def test_evaluate_cli_writes_tables(world, trained, tmp_path, capsys):
+def test_evaluate_cli_writes_tables(trained_standard, tmp_path, capsys):
+  trained = trained_standard
   out = str(tmp_path / "eval")
   assert cli.main(["evaluate", "--run", trained, "--styles", "red", "--frames", "9",
                    "--chunk", "64", "--out", out]) == 0
