@@ -155,8 +155,37 @@ def load_run(run_dir: str) -> Run:
   finally:
     checkpoints.close()
   params = _to_numpy(restored["params"])
+  check_params(params, _expected_params(kind, config),
+               os.path.join(run_dir, CHECKPOINT_DIR, str(step)))
   return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
              record=record)
+
+
+def _expected_params(kind: str, config: Any):
+  """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
+  # pylint: disable=g-import-not-at-top
+  import jax
+  if kind == "nerf":
+    from msnerf_jax.models.nerf import init_nerf_params
+    return jax.eval_shape(lambda: init_nerf_params(config, jax.random.PRNGKey(0)))
+  if kind == "multistyle":
+    from msnerf_jax.models.multistyle import init_multistyle_params
+    return jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(0)))
+  return None
+
+
+def check_params(params: Any, expected: Any, where: str) -> None:
+  """UserError naming `where` unless params have the tree and shapes of `expected`."""
+  import jax  # pylint: disable=g-import-not-at-top
+  if expected is None:
+    return
+  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(params):
+    raise UserError(f"{where}: parameters of another architecture than its run.json says")
+  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
+                               jax.tree_util.tree_leaves(params)):
+    if tuple(want.shape) != tuple(np.shape(got)):
+      raise UserError(f"{where}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
+                      f"its config expects {tuple(want.shape)} (another architecture)")
 
 
 def _to_numpy(tree):

@@ -44,6 +44,10 @@ def main(argv: Optional[List[str]] = None) -> int:
   except KeyboardInterrupt:
     print("msnerf: interrupted; re-run the same command to resume", file=sys.stderr)
     return 130
+  except OSError as e:  # permission denied, disk full ... on a file the user named
+    where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+    print(f"msnerf: error: {where}{e.strerror or e}", file=sys.stderr)
+    return 2
   except MemoryError:
     print("msnerf: error: out of memory; lower --chunk/--batch or the resolution", file=sys.stderr)
     return 2

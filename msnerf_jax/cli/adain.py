@@ -117,7 +117,7 @@ def _stylize(args):
   max_side = args.max_side if args.max_side > 0 else None
   styles = [images_lib.read_image(p, max_side=4096) for p in args.style]
   contents = [images_lib.read_image(p, max_side=max_side) for p in content_paths]
-  for path, image in zip(content_paths, contents):
+  for path, image in zip(list(args.style) + content_paths, styles + contents):
     if min(image.shape[:2]) < 16:
       raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, need at least 16x16")
   encoder_params = vgg.load_vgg_params()

@@ -45,6 +45,8 @@ def load_for_crops(path: str, resize: int, size: int) -> np.ndarray:
   """Reads an image as uint8 [h, w, 3] with shorter side `resize` (at least `size`)."""
   image = images_lib.read_image(path, max_side=4 * max(resize, size))
   h, w = image.shape[:2]
+  if min(h, w) < 16:
+    raise UserError(f"{path}: image is {w}x{h}, need at least 16x16")
   scale = max(resize, size) / min(h, w)
   nh, nw = max(size, round(h * scale)), max(size, round(w * scale))
   return images_lib.to_uint8(images_lib.resize(image, nh, nw))
