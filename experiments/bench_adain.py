@@ -1,12 +1,16 @@
 """Benchmarks AdaIN: stylizing one image (after compilation) and decoder training throughput.
 
   python experiments/bench_adain.py                       # 400x400 stylize + 256x256 training
-  taskset -c 1 python experiments/bench_adain.py --train-size 96 --train-batch 2
-  python experiments/bench_adain.py --decoder /work/runs/adain_cpu   # a trained decoder
+  taskset -c 0 python experiments/bench_adain.py          # pinned to one core
+  python experiments/bench_adain.py --decoder /work/runs/adain_cpu2   # a trained decoder
 
 Prints seconds per stylized image (median of --repeats, compilation excluded) for
 (a) the full path (encode content and style, AdaIN, decode) and (b) a style given by its
 precomputed relu4_1 statistics (the NeRF case: one style, many views), and training images/s.
+For (b) it also prints the FLOPs of one stylization (VGG16 to relu4_1 on the content + the
+decoder; counted from the layer shapes, and as XLA counts the compiled program), the implied
+GFLOP/s, and this machine's float32 matmul rate measured just before, so that the time can be
+compared with what the hardware can do at all.
 """
 
 import argparse
@@ -36,6 +40,51 @@ def timed(fn, repeats):
     jax.block_until_ready(fn())
     times.append(time.perf_counter() - t)
   return float(np.median(times)), float(np.min(times))
+
+
+def conv_flops(h: int, w: int) -> dict:
+  """Multiply-add FLOPs (2 per MAC) of one stylization of an h x w image with known style stats.
+
+  encoder: the 8 VGG16 convs to relu4_1 on the content; decoder: its 9 convs as in the
+  reference architecture (3x3 conv after each x2 nearest upsampling); decoder_fused: what our
+  decoder executes (the 3 convs after an upsampling are 2x2 convs of 4x the output channels on
+  the low-resolution map: 16/36 of their reference FLOPs). Bias, ReLU, pooling, padding and
+  AdaIN are < 0.5% and not counted.
+  """
+  enc, cin, scale = 0, 3, 1
+  for v in vgg.VGG16_TO_RELU4_1:
+    if v == "M":
+      scale *= 2
+      continue
+    enc += 2 * 9 * cin * v * (h // scale) * (w // scale)
+    cin = v
+  dec = dec_fused = 0
+  cin, upsampled = 512, False
+  for v in decoder_lib.DECODER_LAYOUT:
+    if v == "U":
+      scale //= 2
+      upsampled = True
+      continue
+    f = 2 * 9 * cin * v * (h // scale) * (w // scale)
+    dec += f
+    dec_fused += f * 16 // 36 if upsampled else f
+    cin, upsampled = v, False
+  return {"encoder": enc, "decoder": dec, "decoder_fused": dec_fused}
+
+
+def matmul_gflops(n: int = 2048, repeats: int = 5) -> float:
+  """float32 [n, n] @ [n, n] rate of this machine (best of `repeats`), GFLOP/s."""
+  a = jnp.asarray(np.random.default_rng(0).random((n, n), np.float32))
+  f = jax.jit(lambda x: x @ x)
+  jax.block_until_ready(f(a))
+  best = min(timed_once(lambda: f(a)) for _ in range(repeats))
+  return 2 * n ** 3 / best / 1e9
+
+
+def timed_once(fn) -> float:
+  t = time.perf_counter()
+  jax.block_until_ready(fn())
+  return time.perf_counter() - t
 
 
 def cpu_name():
@@ -79,9 +128,26 @@ def main():
   print(f"stylize {s}x{s}, content + style encoded each call: median {med:.3f} s, best {best:.3f} s")
   mean, std = jax.jit(stylize_lib.style_stats_relu4_1)(enc, style)
   cached = jax.jit(stylize_lib.decode_with_stats, static_argnames=("upsample",))
+  gflops = matmul_gflops()
   med, best = timed(lambda: cached(params, enc, content, mean, std, 1.0, upsample=upsample),
                     args.repeats)
   print(f"stylize {s}x{s}, style statistics precomputed:     median {med:.3f} s, best {best:.3f} s")
+  flops = conv_flops(s, s)
+  executed = flops["encoder"] + (flops["decoder_fused"] if upsample == "nearest" else flops["decoder"])
+  reference = flops["encoder"] + flops["decoder"]
+  try:
+    xla = cached.lower(params, enc, content, mean, std, 1.0, upsample=upsample).compile().cost_analysis()
+    xla = xla[0] if isinstance(xla, (list, tuple)) else xla
+    xla_flops = float(xla.get("flops", 0.0))
+  except Exception:  # pylint: disable=broad-except
+    xla_flops = 0.0
+  print(f"  FLOPs: encoder {flops['encoder'] / 1e9:.1f} G + decoder {flops['decoder'] / 1e9:.1f} G "
+        f"= {reference / 1e9:.1f} GFLOP (reference layers); executed with the fused upsampling "
+        f"convs: {executed / 1e9:.1f} GFLOP" + (f" (XLA cost analysis: {xla_flops / 1e9:.1f})" if xla_flops else ""))
+  print(f"  implied rate: {executed / med / 1e9:.1f} GFLOP/s executed ({reference / med / 1e9:.1f} "
+        f"reference-equivalent); float32 2048^3 matmul on this machine now: {gflops:.1f} GFLOP/s")
+  print(f"  lower bound at the matmul rate: {executed / gflops / 1e9:.2f} s per image "
+        f"(target 1 s needs >= {executed / 1e9:.0f} GFLOP/s)")
 
   if args.train_size:
     config = config_lib.AdainConfig(size=args.train_size, batch=args.train_batch)
@@ -99,7 +165,8 @@ def main():
       p, opt, m = step(p, opt, enc, x, y)
       jax.block_until_ready(m)
     dt = (time.perf_counter() - t) / args.train_steps
-    print(f"train {args.train_size}x{args.train_size}, batch {args.train_batch}: {dt:.2f} s/step, "
+    print(f"train {args.train_size}x{args.train_size} (style weight {config.style_weight:g}), "
+          f"batch {args.train_batch}: {dt:.2f} s/step, "
           f"{args.train_batch / dt:.2f} images/s (first step incl. compile {compile_s:.1f} s)")
 
 

@@ -20,8 +20,9 @@ def test_decoder_shapes_and_layers():
   kernels = [params["params"][f"conv{i}"]["Conv_0"]["kernel"].shape for i in range(9)]
   assert [k[2:] for k in kernels] == [(512, 256), (256, 256), (256, 256), (256, 256), (256, 128),
                                      (128, 128), (128, 64), (64, 64), (64, 3)]
-  for mode in decoder.UPSAMPLE_MODES:
-    out = jax.jit(decoder.Decoder(mode).apply)(params, jnp.ones((2, 3, 5, 512)))
+  for mode in decoder.UPSAMPLE_MODES:  # shapes only: traced, not compiled (the values are
+    # checked against the unfused path in test_fused_upsample_conv_equals_upsample_then_conv)
+    out = jax.eval_shape(decoder.Decoder(mode).apply, params, jnp.ones((2, 3, 5, 512)))
     assert out.shape == (2, 24, 40, 3)
   with pytest.raises(AssertionError):
     decoder.Decoder().apply(params, jnp.ones((1, 4, 4, 256)))
@@ -34,6 +35,26 @@ def test_upsampling_modes():
   row = decoder.upsample2x(jnp.array([0.0, 4.0]).reshape(1, 1, 2, 1), "bilinear")[0, 0, :, 0]
   # PyTorch bilinear, align_corners=False: [a, .75a + .25b, .25a + .75b, b].
   np.testing.assert_allclose(row, [0.0, 1.0, 3.0, 4.0], atol=1e-6)
+
+
+def test_fused_upsample_conv_equals_upsample_then_conv():
+  """The nearest-upsampling conv computed on the low-resolution map (4 phases of 2x2 taps)
+  equals the 3x3 reflect-padded conv of the upsampled map, borders included."""
+  x = jax.random.normal(jax.random.PRNGKey(5), (2, 3, 4, 6))
+  kernel = jax.random.normal(jax.random.PRNGKey(6), (3, 3, 6, 5))
+  bias = jax.random.normal(jax.random.PRNGKey(7), (5,))
+  fused = decoder.upsample_nearest_reflect_conv3x3(x, kernel, bias)
+  up = decoder.upsample2x(x, "nearest")
+  padded = jnp.pad(up, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="reflect")
+  ref = jax.lax.conv_general_dilated(padded, kernel, (1, 1), "VALID",
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC")) + bias
+  assert fused.shape == ref.shape == (2, 6, 8, 5)
+  np.testing.assert_allclose(fused, ref, atol=1e-4)
+  np.testing.assert_allclose(decoder.reflect_conv3x3(up, kernel, bias), ref, atol=1e-4)
+  # The module fuses it when asked to upsample (nearest) before its conv.
+  out = decoder.ReflectConv(5, upsample="nearest").apply(
+      {"params": {"Conv_0": {"kernel": kernel, "bias": bias}}}, x)
+  np.testing.assert_allclose(out, ref, atol=1e-4)
 
 
 def test_reflect_padding():
