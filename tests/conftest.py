@@ -49,3 +49,33 @@ def write_blender_scene(folder, n_train=4, n_val=2, size=16, rng=None):
 @pytest.fixture
 def tiny_blender(tmp_path):
   return write_blender_scene(str(tmp_path / "scene"))
+
+
+def fake_decoder(path):
+  """An AdaIN run folder with an untrained decoder: enough to exercise the plumbing."""
+  # pylint: disable=g-import-not-at-top
+  import jax
+  from msnerf_jax import checkpoint
+  from msnerf_jax import config as config_lib
+  from msnerf_jax.models import decoder
+  checkpoint.prepare_run_dir(str(path), "adain",
+                             {"config": config_lib.to_dict(config_lib.AdainConfig())})
+  ckpts = checkpoint.Checkpoints(str(path))
+  ckpts.save(1, {"params": decoder.init_decoder(jax.random.PRNGKey(0)), "step": np.asarray(1)})
+  ckpts.close()
+  return str(path)
+
+
+def untrained_nerf_run(run_dir, data, config, step=2):
+  """A NeRF run folder as `nerf train` leaves it, with untrained params (no step compiled)."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import checkpoint
+  from msnerf_jax import config as config_lib
+  from msnerf_jax.train import nerf
+  from msnerf_jax.train import state as state_lib
+  checkpoint.prepare_run_dir(run_dir, "nerf", {"config": config_lib.to_dict(config),
+                                               "data": config_lib.to_dict(data)})
+  ckpts = checkpoint.Checkpoints(run_dir)
+  ckpts.save(step, state_lib.checkpoint_tree(nerf.init_state(config)))
+  ckpts.close()
+  return run_dir

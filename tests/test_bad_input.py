@@ -15,7 +15,6 @@ import sys
 import tempfile
 import textwrap
 
-import jax
 import numpy as np
 import pytest
 from PIL import Image
@@ -26,27 +25,16 @@ from msnerf_jax.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import stylized as stylized_lib
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.models import decoder
 from msnerf_jax.train import nerf
 from msnerf_jax.train import state as state_lib
 
-from conftest import write_blender_scene
+from conftest import fake_decoder, untrained_nerf_run, write_blender_scene
 from test_train_nerf import TINY
 
 SIZE = 16
 
 
 # ----------------------------------------------------------------------------- builders
-
-
-def fake_decoder(path):
-  """An AdaIN run folder with an untrained decoder (enough for the plumbing)."""
-  checkpoint.prepare_run_dir(str(path), "adain",
-                             {"config": config_lib.to_dict(config_lib.AdainConfig())})
-  ckpts = checkpoint.Checkpoints(str(path))
-  ckpts.save(1, {"params": decoder.init_decoder(jax.random.PRNGKey(0)), "step": np.asarray(1)})
-  ckpts.close()
-  return str(path)
 
 
 def write_style(path, colour=(200, 30, 30), size=(40, 24)):
@@ -121,13 +109,7 @@ def world(tmp_path_factory):
   scene_dir = write_blender_scene(str(root / "scene"), n_train=3, n_val=1, size=SIZE)
   scene, data = load_scene(DataConfig(path=scene_dir))
   nerf_run = str(root / "nerf")
-  # A NeRF run as `nerf train` leaves it, with untrained params (no step compiled).
-  config = dataclasses.replace(TINY, steps=2, checkpoint_every=2)
-  checkpoint.prepare_run_dir(nerf_run, "nerf", {"config": config_lib.to_dict(config),
-                                                "data": config_lib.to_dict(data)})
-  ckpts = checkpoint.Checkpoints(nerf_run)
-  ckpts.save(2, state_lib.checkpoint_tree(nerf.init_state(config)))
-  ckpts.close()
+  untrained_nerf_run(nerf_run, data, dataclasses.replace(TINY, steps=2, checkpoint_every=2))
   styles_dir = root / "styles"
   styles_dir.mkdir()
   style = write_style(styles_dir / "red.png")

@@ -2,7 +2,6 @@
 consistency protocol on a scene whose geometry is known exactly."""
 
 import numpy as np
-import jax
 import jax.numpy as jnp
 import pytest
 

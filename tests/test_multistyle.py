@@ -15,16 +15,14 @@ import pytest
 from PIL import Image
 
 from msnerf_jax import checkpoint, cli, load_run
-from msnerf_jax import config as config_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
-from msnerf_jax.models import decoder
 from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP
 from msnerf_jax.models.nerf import NerfTrunk
 from msnerf_jax.train import multistyle, nerf
 
-from conftest import write_blender_scene
+from conftest import fake_decoder, write_blender_scene
 from test_train_nerf import TINY
 
 TESTS = os.path.dirname(os.path.abspath(__file__))
@@ -33,16 +31,6 @@ TESTS = os.path.dirname(os.path.abspath(__file__))
 def leaves_with_paths(tree):
   return [(jax.tree_util.keystr(p), np.asarray(v))
           for p, v in jax.tree_util.tree_leaves_with_path(tree)]
-
-
-def fake_decoder(path):
-  """An AdaIN run folder with an untrained decoder: enough to exercise the plumbing."""
-  checkpoint.prepare_run_dir(str(path), "adain",
-                             {"config": config_lib.to_dict(config_lib.AdainConfig())})
-  ckpts = checkpoint.Checkpoints(str(path))
-  ckpts.save(1, {"params": decoder.init_decoder(jax.random.PRNGKey(0)), "step": np.asarray(1)})
-  ckpts.close()
-  return str(path)
 
 
 def write_style(path, colour, size=(40, 24)):

@@ -1,7 +1,6 @@
 """The `msnerf` command: one verb per stage. Each verb only parses and calls the library."""
 
 import argparse
-import os
 import sys
 from typing import List, Optional
 
