@@ -161,6 +161,24 @@ def load_run(run_dir: str) -> Run:
              record=record)
 
 
+def scene_of(run: Run):
+  """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
+  style of a stylized dataset (run.json's "style"), that style's views are its images."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.scene import load_scene
+  from msnerf_jax.data.stylized import style_views
+  source = os.path.join(run.run_dir, RUN_FILE)
+  if "data" not in run.record:
+    raise UserError(f"{source}: a {run.kind!r} run has no scene")
+  scene, data = load_scene(config_lib.from_dict(config_lib.DataConfig, run.record["data"], source))
+  style = run.record.get("style")
+  if style is not None:
+    if not isinstance(style, dict) or not {"stylized", "name"} <= set(style):
+      raise UserError(f"{source}: 'style' needs 'stylized' and 'name'")
+    scene = style_views(style["stylized"], style["name"], scene)
+  return scene, data
+
+
 def _expected_params(kind: str, config: Any):
   """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
   # pylint: disable=g-import-not-at-top

@@ -1,9 +1,10 @@
-"""The stylized-3D evaluation of a multi-style run against per-frame AdaIN, on one camera path.
+"""The stylized-3D evaluation of multi-style runs against the baselines, on one camera path.
 
-For each style, two methods render the same path:
-  - `multistyle` (or `multistyle-density`): the run itself, all styles in one sweep per view;
-  - `adain-per-frame`: the NeRF the run was built on renders the path, and every frame is
-    stylized independently by the AdaIN decoder (direct 2D style transfer on NeRF renders).
+For each style, these methods render the same path:
+  - `multistyle` / `multistyle-density`: each multi-style run, all styles in one sweep per view;
+  - `nerf-single-style`: a NeRF trained on that style's stylized views alone, where given;
+  - `adain-per-frame`: the NeRF the (first) run was built on renders the path, and every frame
+    is stylized independently by the AdaIN decoder (direct 2D style transfer on NeRF renders).
 Each gets: short- and long-range consistency (warped RMSE and LPIPS, k = 1 and 7, see
 msnerf_jax.consistency; both methods warp with the geometry they render, which for the
 standard multi-style model and the baseline is the same NeRF density) and the style distance
@@ -24,10 +25,8 @@ from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax import video
-from msnerf_jax.checkpoint import load_run
-from msnerf_jax.config import DataConfig, from_dict
+from msnerf_jax.checkpoint import load_run, scene_of
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
@@ -54,26 +53,55 @@ def score(frames, depths, accs, poses, K, ndc, style_image, encoder, lpips_param
   return row
 
 
-def evaluate_run(run_dir: str, out_dir: str, styles: Optional[Sequence[str]] = None,
-                 decoder_dir: Optional[str] = None, frames: int = 40,
-                 chunk: Optional[int] = None, progress: bool = True) -> Dict[str, Any]:
-  """Evaluates a multi-style run and the per-frame AdaIN baseline; writes tables and figures.
+def method_labels(runs) -> List[str]:
+  """Table labels of multi-style runs: multistyle / multistyle-density, numbered when repeated."""
+  labels = ["multistyle-density" if r.config.density_aware else "multistyle" for r in runs]
+  return [x if labels.count(x) == 1 else f"{x}#{labels[:i + 1].count(x)}"
+          for i, x in enumerate(labels)]
 
+
+def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
+                 decoder_dir: Optional[str] = None, frames: int = 40,
+                 chunk: Optional[int] = None, progress: bool = True,
+                 single_style_runs: Sequence[str] = ()) -> Dict[str, Any]:
+  """Evaluates multi-style runs and the baselines on one camera path; writes tables and figures.
+
+  Args:
+    run_dirs: one multi-style run folder, or several of the same scene and stylized dataset
+      (the standard and the density-aware variant, say); the first one's NeRF and decoder
+      make the per-frame AdaIN baseline.
+    single_style_runs: NeRF runs each trained on one style of that dataset (`msnerf nerf
+      train --stylized DIR --style NAME`): the single-style baseline of their style.
   Returns {"rows": [...], "files": [...], "seconds": float}.
   """
   t0 = time.time()
-  run = load_run(run_dir)
-  if run.kind != "multistyle":
-    raise UserError(f"{run_dir}: a {run.kind!r} run; `msnerf evaluate` takes a multi-style run")
-  scene, _ = load_scene(from_dict(DataConfig, run.record["data"], run_dir))
+  run_dirs = [run_dirs] if isinstance(run_dirs, str) else list(run_dirs)
+  runs = [load_run(d) for d in run_dirs]
+  for d, run in zip(run_dirs, runs):
+    if run.kind != "multistyle":
+      raise UserError(f"{d}: a {run.kind!r} run; `msnerf evaluate --run` takes multi-style runs")
+  run = runs[0]
+  scene, _ = scene_of(run)
   manifest = read_manifest(run.record["stylized"])
   sources = {s["name"]: s for s in manifest["styles"] if s["source"]}
-  vectors = multistyle.style_vectors(run)
-  names = list(styles) if styles else [n for n in vectors if n in sources]
+  vectors = [multistyle.style_vectors(r) for r in runs]
+  names = list(styles) if styles else [n for n in vectors[0] if n in sources]
   for name in names:
-    if name not in sources:
-      raise UserError(f"style {name!r}: not a stylized training style of {run_dir} "
-                      f"(has {', '.join(sources)})")
+    for d, v in zip(run_dirs, vectors):
+      if name not in sources or name not in v:
+        raise UserError(f"style {name!r}: not a stylized training style of {d} "
+                        f"(has {', '.join(n for n in v if n in sources)})")
+  singles = {}
+  for d in single_style_runs:
+    single = load_run(d)
+    style = single.record.get("style") or {}
+    if single.kind != "nerf" or "name" not in style:
+      raise UserError(f"{d}: not a single-style NeRF run (train one with `msnerf nerf train "
+                      "--stylized DIR --style NAME`)")
+    if style["name"] not in names:
+      raise UserError(f"{d}: trained on style {style['name']!r}, which is not evaluated here "
+                      f"({', '.join(names)})")
+    singles[style["name"]] = single
   decoder_dir = decoder_dir or manifest.get("decoder")
   if not decoder_dir:
     raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
@@ -82,35 +110,41 @@ def evaluate_run(run_dir: str, out_dir: str, styles: Optional[Sequence[str]] = N
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
                              .round().astype(int)] if frames else scene.render_poses
-  method = "multistyle-density" if run.config.density_aware else "multistyle"
+  methods = method_labels(runs)
 
   # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
   base = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk)
           for c2w in tqdm(poses, desc="NeRF path", disable=not progress, leave=False)]
-  # All styles in one sweep per view.
-  stack = np.stack([vectors[n] for n in names])
-  swept = [multistyle.render_styles(scene, run.params, run.config, c2w, stack, chunk)
-           for c2w in tqdm(poses, desc=f"{method} path", disable=not progress, leave=False)]
+  # All styles in one sweep per view, for each multi-style run.
+  stack = [np.stack([v[n] for n in names]) for v in vectors]
+  swept = [[multistyle.render_styles(scene, r.params, r.config, c2w, s, chunk)
+            for c2w in tqdm(poses, desc=f"{m} path", disable=not progress, leave=False)]
+           for r, s, m in zip(runs, stack, methods)]
   rows, figure_rows = [], []
   for m, name in enumerate(tqdm(names, desc="scoring styles", disable=not progress)):
     style = stylize_lib.cover_crop(images_lib.read_image(sources[name]["source"], max_side=1024),
                                    scene.height, scene.width)
-    ours = [s["rgb"][m] for s in swept]
     per_frame = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style],
                                            alpha=sources[name]["alpha"]) for b in base]
     if scene.white_background:  # as the stylized training views: background back to white.
       per_frame = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
                    for f, b in zip(per_frame, base)]
-    for label, frames_, geometry in (
-        (method, ours, [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]}
-                        for s in swept]),
-        ("adain-per-frame", per_frame, base)):
-      row = {"method": label, "style": name,
-             **score(frames_, [g["depth"] for g in geometry],
-                     [g["accumulation"] for g in geometry], poses, scene.K, scene.ndc, style,
-                     encoder, lpips_params)}
-      rows.append(row)
-    figure_rows += [[style] + ours[:4], [style] + per_frame[:4]]
+    candidates = [(method, [s["rgb"][m] for s in sw],
+                   [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]} for s in sw])
+                  for method, sw in zip(methods, swept)]
+    if name in singles:
+      single = singles[name]
+      renders = [nerf_lib.render_view(scene, single.params, single.config, c2w, chunk)
+                 for c2w in tqdm(poses, desc=f"single-style {name}", disable=not progress,
+                                 leave=False)]
+      candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))
+    candidates.append(("adain-per-frame", per_frame, base))
+    for label, frames_, geometry in candidates:
+      rows.append({"method": label, "style": name,
+                   **score(frames_, [g["depth"] for g in geometry],
+                           [g["accumulation"] for g in geometry], poses, scene.K, scene.ndc,
+                           style, encoder, lpips_params)})
+      figure_rows.append([style] + list(frames_[:4]))
   files = write_tables(rows, out_dir)
   files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure_rows))
   return {"rows": rows, "files": files, "seconds": time.time() - t0}

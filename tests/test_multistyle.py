@@ -325,16 +325,58 @@ def test_two_devices_give_the_same_update_as_one(world):
   assert result.returncode == 0, result.stderr[-3000:]
 
 
-def test_evaluate_cli_writes_tables(trained_standard, tmp_path, capsys):
-  trained = trained_standard
+@pytest.fixture(scope="module")
+def single_red(world):
+  """A NeRF trained 4 steps on the 'red' views of the stylized dataset (the baseline)."""
+  from msnerf_jax.data.stylized import style_views  # pylint: disable=g-import-not-at-top
+  run = str(world["root"] / "single_red")
+  scene, data = load_scene(DataConfig(path=world["scene_dir"]))
+  style = {"stylized": world["stylized"], "name": "red"}
+  nerf.train(style_views(world["stylized"], "red", scene), dataclasses.replace(TINY, steps=4),
+             data, run, progress=False, style=style)
+  return run
+
+
+def test_single_style_nerf_trains_on_the_style_views(world, single_red):
+  run = load_run(single_red)
+  scene, _ = checkpoint.scene_of(run)
+  assert run.kind == "nerf" and run.record["style"]["name"] == "red"
+  for i in (0, 5):
+    view = np.asarray(Image.open(os.path.join(world["stylized"], "red", f"{i:04d}.png")))
+    np.testing.assert_array_equal(np.round(scene.images[i] * 255).astype(np.uint8), view[..., :3])
+  np.testing.assert_array_equal(scene.c2w, world["scene"].c2w)
+  assert float(np.abs(scene.images - world["scene"].images).max()) > 0.1
+
+
+def test_evaluate_cli_writes_tables(trained_standard, trained_density, single_red, tmp_path,
+                                    capsys):
   out = str(tmp_path / "eval")
-  assert cli.main(["evaluate", "--run", trained, "--styles", "red", "--frames", "9",
-                   "--chunk", "64", "--out", out]) == 0
+  assert cli.main(["evaluate", "--run", trained_standard, trained_density, "--single-style",
+                   single_red, "--frames", "9", "--chunk", "64", "--out", out]) == 0
   rows = json.load(open(os.path.join(out, "results.json")))
-  assert [r["method"] for r in rows][1] == "adain-per-frame" and len(rows) == 2
+  assert [(r["style"], r["method"]) for r in rows] == [
+      ("red", "multistyle"), ("red", "multistyle-density"), ("red", "nerf-single-style"),
+      ("red", "adain-per-frame"), ("blue", "multistyle"), ("blue", "multistyle-density"),
+      ("blue", "adain-per-frame")]
   for row in rows:
     for key in ("rmse_k1", "rmse_k7", "lpips_k1", "style_adain", "style_gram"):
       assert np.isfinite(row[key]) and row[key] >= 0, (key, row)
+  # The three 3D methods differ from each other (different models), not only from AdaIN.
+  assert len({round(r["style_adain"], 6) for r in rows[:3]}) == 3
   assert open(os.path.join(out, "results.md")).read().startswith("| method")
   assert os.path.getsize(os.path.join(out, "frames.png")) > 0
-  assert "adain-per-frame" in capsys.readouterr().out
+  printed = capsys.readouterr().out
+  assert "adain-per-frame" in printed and "nerf-single-style" in printed
+
+
+def test_single_style_bad_input(world, trained_standard, tmp_path, capsys):
+  out = str(tmp_path / "run")
+  base = ["nerf", "train", "--data", world["scene_dir"], "--out", out, "--steps", "1"]
+  _one_line_error(capsys, base + ["--stylized", world["stylized"]], "--style")
+  _one_line_error(capsys, base + ["--stylized", world["stylized"], "--style", "green"],
+                  "green", "red, blue, original")
+  assert not os.path.exists(out)
+  _one_line_error(capsys, ["evaluate", "--run", trained_standard, "--single-style", world["nerf"],
+                           "--out", str(tmp_path / "e")], world["nerf"], "single-style")
+  _one_line_error(capsys, ["evaluate", "--run", world["nerf"], "--out", str(tmp_path / "e")],
+                  "multi-style")

@@ -27,18 +27,12 @@ def output_stem(path: str) -> str:
 def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   # pylint: disable=g-import-not-at-top
-  import os
-  from msnerf_jax import config as config_lib
-  from msnerf_jax.checkpoint import RUN_FILE, load_run
-  from msnerf_jax.data.scene import load_scene
+  from msnerf_jax.checkpoint import load_run, scene_of
   from msnerf_jax.errors import UserError
   run = load_run(run_dir)
   if run.kind != kind:
     raise UserError(f"{run_dir}: is a {run.kind!r} run, not a {kind!r} run")
-  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
-                              os.path.join(run_dir, RUN_FILE))
-  scene, _ = load_scene(data)
-  return run, scene
+  return run, scene_of(run)[0]
 
 
 def print_training_summary(title: str, summary, what: str, next_hint: str) -> None:

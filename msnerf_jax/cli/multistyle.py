@@ -74,12 +74,20 @@ def register(commands, formatter):
 
   p = commands.add_parser(
       "evaluate", formatter_class=formatter,
-      help="consistency and style metrics of a multi-style run vs per-frame AdaIN",
-      description="Renders the run's camera path in each style and compares it with per-frame "
-                  "AdaIN on the NeRF's renders: short/long-range warped RMSE and LPIPS (k = 1, "
-                  "7) and the style distance to the style image. Writes results.md/.csv/.json "
-                  "and frames.png to --out.")
-  p.add_argument("--run", required=True, help="multi-style run folder")
+      help="consistency and style metrics of multi-style runs vs the baselines",
+      description="Renders the camera path in each style with each multi-style run and the "
+                  "baselines (per-frame AdaIN on the NeRF's renders; NeRFs trained on one "
+                  "style alone, if given) and reports short/long-range warped RMSE and LPIPS "
+                  "(k = 1, 7) and the style distance to the style image. Writes "
+                  "results.md/.csv/.json and frames.png to --out.",
+      epilog="example: msnerf evaluate --run runs/ms runs/ms_density --single-style "
+             "runs/single_mondrian --out runs/eval")
+  p.add_argument("--run", required=True, nargs="+", metavar="RUN",
+                 help="multi-style run folder(s) of one stylized dataset (e.g. the standard "
+                      "and the density-aware variant)")
+  p.add_argument("--single-style", nargs="+", default=(), metavar="NERF_RUN",
+                 help="NeRF runs trained on one style of that dataset (`msnerf nerf train "
+                      "--stylized DIR --style NAME`), each compared on its style")
   p.add_argument("--styles", nargs="+", default=None, metavar="NAME",
                  help="training styles to evaluate (default: all stylized ones)")
   p.add_argument("--decoder", default=None,
@@ -297,7 +305,7 @@ def cmd_evaluate(args):
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a folder")
   result = evaluate.evaluate_run(args.run, args.out, args.styles, args.decoder, args.frames,
-                                 args.chunk)
+                                 args.chunk, single_style_runs=args.single_style)
   evaluate.print_table(result["rows"])
   print_summary("evaluation done", [("time", f"{result['seconds']:.0f} s"),
                                     ("written", ", ".join(result["files"]))])

@@ -36,6 +36,11 @@ def register(commands, formatter):
   p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
   p.add_argument("--devices", type=int, default=None,
                  help="local devices to train on (default: all; gradients are averaged)")
+  p.add_argument("--stylized", default=None, metavar="DIR",
+                 help="train on one style's views of this stylized dataset (`msnerf "
+                      "stylize-scene` of the same scene) instead of the photos: the "
+                      "single-style baseline; needs --style")
+  p.add_argument("--style", default=None, metavar="NAME", help="the style, with --stylized")
   p.set_defaults(func=cmd_train)
 
   p = verbs.add_parser("eval", formatter_class=formatter, help="PSNR/SSIM on a held-out split",
@@ -66,13 +71,21 @@ def cmd_train(args):
     raise UserError(f"{args.out}: is a file, expected a run folder")
   if args.steps is not None and args.steps < 1:
     raise UserError(f"--steps {args.steps}: must be >= 1")
+  if (args.stylized is None) != (args.style is None):
+    raise UserError("--stylized and --style go together (a dataset folder and one of its styles)")
   scene, data_config = load_scene(data_config)
+  style = None
+  if args.stylized is not None:
+    from msnerf_jax.data.stylized import style_views
+    style = {"stylized": os.path.abspath(args.stylized), "name": args.style}
+    scene = style_views(style["stylized"], args.style, scene)
   config = config_lib.nerf_preset(args.preset, data_config.format, steps=args.steps,
                                   batch_rays=args.batch_rays, seed=args.seed,
                                   checkpoint_every=args.checkpoint_every)
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
-        f"views of {scene.width}x{scene.height}; preset {args.preset}")
-  summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices)
+        f"views of {scene.width}x{scene.height}; preset {args.preset}"
+        + (f"; style {args.style} of {args.stylized}" if style else ""))
+  summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices, style=style)
   print_training_summary("NeRF training done", summary, "",
                          f"msnerf nerf eval --run {args.out}; msnerf nerf render --run "
                          f"{args.out} --out {os.path.join(args.out, 'video')}")

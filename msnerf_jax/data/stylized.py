@@ -153,6 +153,44 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   return manifest
 
 
+def check_views(path: str, n: int, height: int, width: int, c2w: np.ndarray, scene: Scene,
+                what: str) -> None:
+  """UserError unless a stylized dataset's views (count, size, poses) are those of `scene`."""
+  if (height, width) != (scene.height, scene.width):
+    raise UserError(f"{path}: views are {width}x{height}, {what} is "
+                    f"{scene.width}x{scene.height} (use the same --downscale)")
+  if n != len(scene.images) or not np.allclose(c2w, scene.c2w, atol=1e-4):
+    raise UserError(f"{path}: camera poses do not match {what} (stylized from another scene?)")
+
+
+def style_views(folder: str, name: str, scene: Scene) -> Scene:
+  """`scene` with its images replaced by the views of one style of a stylized dataset.
+
+  Same cameras, splits and render path: what a NeRF trained on one style alone (the
+  single-style baseline) is trained and evaluated on. UserError naming the problem when the
+  style is missing or unfinished, or the dataset was made from other views.
+  """
+  manifest = read_manifest(folder)
+  names = [s["name"] for s in manifest["styles"]]
+  if name not in names:
+    raise UserError(f"style {name!r}: not in {folder} (has {', '.join(names)})")
+  if name not in manifest["done"]:
+    raise UserError(f"{folder}: style {name} is not finished; re-run the same "
+                    "`msnerf stylize-scene` command to complete it")
+  n, h, w = manifest["n_views"], manifest["height"], manifest["width"]
+  c2w = images_lib.read_npy(os.path.join(folder, POSES), (n, 3, 4))
+  check_views(folder, n, h, w, c2w, scene, f"the scene {manifest['data'].get('path', '')}")
+  images = np.empty_like(scene.images)
+  for i in range(n):
+    path = view_file(folder, name, i)
+    image = images_lib.read_image(path)
+    if image.shape[:2] != (h, w):
+      raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the manifest "
+                      f"says {w}x{h}")
+    images[i] = image
+  return dataclasses.replace(scene, images=images)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class StylizedData:
   """A loaded stylized dataset. images: [M, N, H, W, 3] uint8; vectors: [M, 1024];

@@ -17,8 +17,8 @@ from msnerf_jax import metrics
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data.scene import Scene, load_scene
-from msnerf_jax.data.stylized import StylizedData
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.data.stylized import StylizedData, check_views
 from msnerf_jax.errors import UserError
 from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
 from msnerf_jax.train import loop as loop_lib
@@ -140,21 +140,13 @@ def load_nerf_run(nerf_run_dir: str) -> Tuple[ckpt_lib.Run, Scene, config_lib.Da
   if run.kind != "nerf":
     raise UserError(f"{nerf_run_dir}: a {run.kind!r} run, not a NeRF run "
                     "(train one with `msnerf nerf train`)")
-  data = config_lib.from_dict(config_lib.DataConfig, run.record.get("data", {}),
-                              os.path.join(nerf_run_dir, ckpt_lib.RUN_FILE))
-  scene, data = load_scene(data)
-  return run, scene, data
+  return (run, *ckpt_lib.scene_of(run))
 
 
 def check_compatible(stylized: StylizedData, scene: Scene, nerf_run_dir: str) -> None:
   """UserError unless the stylized dataset has the NeRF run's views: sizes and poses."""
   n, h, w = stylized.images.shape[1:4]
-  if (h, w) != (scene.height, scene.width):
-    raise UserError(f"{stylized.path}: views are {w}x{h}, the NeRF run {nerf_run_dir} was "
-                    f"trained at {scene.width}x{scene.height} (use the same --downscale)")
-  if n != len(scene.images) or not np.allclose(stylized.c2w, scene.c2w, atol=1e-4):
-    raise UserError(f"{stylized.path}: camera poses do not match the scene of the NeRF run "
-                    f"{nerf_run_dir} (stylized from another scene?)")
+  check_views(stylized.path, n, h, w, stylized.c2w, scene, f"the NeRF run {nerf_run_dir}")
 
 
 # ----------------------------------------------------------------------------- the loop

@@ -112,8 +112,13 @@ def init_state(config: NerfConfig) -> state_lib.TrainState:
 
 def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
-          callback: Optional[Callable[[int, Any], None]] = None) -> Dict[str, Any]:
+          callback: Optional[Callable[[int, Any], None]] = None,
+          style: Optional[Dict[str, str]] = None) -> Dict[str, Any]:
   """Trains (or resumes) a NeRF run in `run_dir`; returns a summary dict.
+
+  `style` ({"stylized": dataset folder, "name": style}) records that the scene's images are
+  one style's stylized views (data.stylized.style_views), so that loading the run
+  (checkpoint.run_scene) reloads those views: the single-style NeRF baseline.
 
   Checkpoints every config.checkpoint_every steps and at the end; re-running with the same
   settings resumes from the latest complete checkpoint. A NaN/inf loss stops training with
@@ -124,8 +129,10 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   n_devices = n_devices or jax.local_device_count()
   if config.batch_rays % n_devices:
     raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
-  ckpt_lib.prepare_run_dir(run_dir, "nerf", {
-      "config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)})
+  record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)}
+  if style is not None:
+    record["style"] = dict(style)
+  ckpt_lib.prepare_run_dir(run_dir, "nerf", record)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
   c2w = jnp.asarray(scene.c2w[train_idx])
