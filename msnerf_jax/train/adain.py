@@ -318,8 +318,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
         timed_steps += 1
       if bar is not None:
         bar.update(1)
-        bar.set_postfix(loss=f"{metrics['loss']:.3f}", content=f"{metrics['content']:.3f}",
-                        style=f"{metrics['style']:.3f}")
+        bar.set_postfix({k: f"{v:.3f}" for k, v in metrics.items()})
       if step % config.sample_every == 0 or step == config.steps:
         write_sample(step)
       if step % config.checkpoint_every == 0 or step == config.steps:
