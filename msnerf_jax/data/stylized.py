@@ -180,15 +180,23 @@ def style_views(folder: str, name: str, scene: Scene) -> Scene:
   n, h, w = manifest["n_views"], manifest["height"], manifest["width"]
   c2w = images_lib.read_npy(os.path.join(folder, POSES), (n, 3, 4))
   check_views(folder, n, h, w, c2w, scene, f"the scene {manifest['data'].get('path', '')}")
-  images = np.empty_like(scene.images)
-  for i in range(n):
+  images = read_views(folder, name, n, h, w, progress=False).astype(np.float32) / 255.0
+  return dataclasses.replace(scene, images=images)
+
+
+def read_views(folder: str, name: str, n: int, height: int, width: int,
+               progress: bool = True) -> np.ndarray:
+  """The n views of one style as uint8 [n, height, width, 3]; UserError naming a file that
+  cannot be read or has another size than the manifest's."""
+  images = np.empty((n, height, width, 3), np.uint8)
+  for i in tqdm(range(n), desc=f"loading {name}", disable=not progress, leave=False):
     path = view_file(folder, name, i)
     image = images_lib.read_image(path)
-    if image.shape[:2] != (h, w):
+    if image.shape[:2] != (height, width):
       raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the manifest "
-                      f"says {w}x{h}")
-    images[i] = image
-  return dataclasses.replace(scene, images=images)
+                      f"says {width}x{height}")
+    images[i] = images_lib.to_uint8(image)
+  return images
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -221,15 +229,7 @@ def load_stylized(out_dir: str, progress: bool = True) -> StylizedData:
   n, h, w = manifest["n_views"], manifest["height"], manifest["width"]
   c2w = images_lib.read_npy(os.path.join(out_dir, POSES), (n, 3, 4))
   vectors = np.stack([images_lib.read_npy(os.path.join(out_dir, m, VECTOR), (1024,)) for m in names])
-  images = np.empty((len(names), n, h, w, 3), np.uint8)
-  for m, name in enumerate(names):
-    for i in tqdm(range(n), desc=f"loading {name}", disable=not progress, leave=False):
-      path = view_file(out_dir, name, i)
-      image = images_lib.read_image(path)
-      if image.shape[:2] != (h, w):
-        raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the manifest "
-                        f"says {w}x{h}")
-      images[m, i] = images_lib.to_uint8(image)
+  images = np.stack([read_views(out_dir, name, n, h, w, progress) for name in names])
   splits = {k: np.asarray(v, np.int64) for k, v in manifest["splits"].items()}
   return StylizedData(names=names, vectors=vectors, images=images, c2w=c2w, splits=splits,
                       path=out_dir)
