@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # pylint: disable=g-import-not-at-top
-from msnerf_jax import metrics, video
+from msnerf_jax import evaluate, metrics, video
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax.checkpoint import load_run
 from msnerf_jax.cli.common import load_run_and_scene
@@ -115,10 +115,8 @@ def main():
     for spec in args.styles:
       image = style_image(spec, sources, h, w)
       ours = [s[0] for s in render([resolve_style(spec, vectors, cache)])]
-      per_frame = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [image]) for b in base]
-      if scene.white_background:
-        per_frame = [f * b["accumulation"][..., None] + 1.0 - b["accumulation"][..., None]
-                     for f, b in zip(per_frame, base)]
+      per_frame = evaluate.per_frame_adain(decoder, encoder, base, image, 1.0,
+                                           scene.white_background)
       d_ours, d_adain = distance(encoder, ours, image), distance(encoder, per_frame, image)
       rows.append({"style": os.path.basename(spec), "trained on": spec in vectors,
                    "multi-style": d_ours, "per-frame AdaIN": d_adain,
@@ -126,10 +124,7 @@ def main():
       grid.append([image] + ours + per_frame)
   os.makedirs(args.out, exist_ok=True)
   figure = video.write_grid(os.path.join(args.out, "grid.png"), grid)
-  columns = list(rows[0])
-  fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
-  md = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-  md += ["| " + " | ".join(fmt(r[c]) for c in columns) + " |" for r in rows]
+  md = evaluate.markdown_table(rows, list(rows[0]))
   seconds = time.time() - t0
   where = f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'CPU'}"
   md.append(f"\n{args.mode} on {args.run}, {args.views} views of {w}x{h}: {seconds:.0f} s ({where})")

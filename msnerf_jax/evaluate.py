@@ -53,6 +53,26 @@ def score(frames, depths, accs, poses, K, ndc, style_image, encoder, lpips_param
   return row
 
 
+def per_frame_adain(decoder, encoder, base: Sequence[Dict[str, np.ndarray]], style: np.ndarray,
+                    alpha: float, white_background: bool) -> List[np.ndarray]:
+  """The per-frame AdaIN baseline: each NeRF render in `base` stylized on its own; on white-
+  background (Blender) scenes the background is put back to white, as in the stylized
+  training views."""
+  frames = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style], alpha=alpha)
+            for b in base]
+  if white_background:
+    frames = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
+              for f, b in zip(frames, base)]
+  return frames
+
+
+def markdown_table(rows: Sequence[Dict[str, Any]], columns: Sequence[str]) -> List[str]:
+  """Lines of a Markdown table of `rows` (floats with 4 decimals)."""
+  fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
+  return (["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+          + ["| " + " | ".join(fmt(r[c]) for c in columns) + " |" for r in rows])
+
+
 def method_labels(runs) -> List[str]:
   """Table labels of multi-style runs: multistyle / multistyle-density, numbered when repeated."""
   labels = ["multistyle-density" if r.config.density_aware else "multistyle" for r in runs]
@@ -124,11 +144,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   for m, name in enumerate(tqdm(names, desc="scoring styles", disable=not progress)):
     style = stylize_lib.cover_crop(images_lib.read_image(sources[name]["source"], max_side=1024),
                                    scene.height, scene.width)
-    per_frame = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style],
-                                           alpha=sources[name]["alpha"]) for b in base]
-    if scene.white_background:  # as the stylized training views: background back to white.
-      per_frame = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
-                   for f, b in zip(per_frame, base)]
+    per_frame = per_frame_adain(decoder, encoder, base, style, sources[name]["alpha"],
+                                scene.white_background)
     candidates = [(method, [s["rgb"][m] for s in sw],
                    [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]} for s in sw])
                   for method, sw in zip(methods, swept)]
@@ -152,9 +169,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
 
 def write_tables(rows: List[Dict[str, Any]], out_dir: str) -> List[str]:
   """results.md, results.csv and results.json in out_dir (atomically)."""
-  fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
-  md = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-  md += ["| " + " | ".join(fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
+  md = markdown_table(rows, COLUMNS)
   buffer = io.StringIO()
   writer = csv.DictWriter(buffer, fieldnames=list(COLUMNS), extrasaction="ignore")
   writer.writeheader()
