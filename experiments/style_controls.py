@@ -108,15 +108,17 @@ def main():
                                                    for f, p in zip(frames, photo)]))
       rows.append(row)
   else:
-    decoder = stylize_lib.load_decoder(read_manifest(run.record["stylized"])["decoder"])
+    manifest = read_manifest(run.record["stylized"])
+    decoder = stylize_lib.load_decoder(manifest["decoder"])
     nerf_run = load_run(run.record["nerf_run"])
     base = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w, args.chunk)
             for c2w in poses]
     for spec in args.styles:
       image = style_image(spec, sources, h, w)
       ours = [s[0] for s in render([resolve_style(spec, vectors, cache)])]
-      per_frame = evaluate.per_frame_adain(decoder, encoder, base, image, 1.0,
-                                           scene.white_background)
+      per_frame = evaluate.per_frame_adain(
+          decoder, encoder, base, images_lib.read_image(sources.get(spec, spec), max_side=1024),
+          1.0, scene.white_background, manifest["stylize_scale"])
       d_ours, d_adain = distance(encoder, ours, image), distance(encoder, per_frame, image)
       rows.append({"style": os.path.basename(spec), "trained on": spec in vectors,
                    "multi-style": d_ours, "per-frame AdaIN": d_adain,

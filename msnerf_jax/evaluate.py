@@ -54,12 +54,12 @@ def score(frames, depths, accs, poses, K, ndc, style_image, encoder, lpips_param
 
 
 def per_frame_adain(decoder, encoder, base: Sequence[Dict[str, np.ndarray]], style: np.ndarray,
-                    alpha: float, white_background: bool) -> List[np.ndarray]:
-  """The per-frame AdaIN baseline: each NeRF render in `base` stylized on its own; on white-
-  background (Blender) scenes the background is put back to white, as in the stylized
-  training views."""
-  frames = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style], alpha=alpha)
-            for b in base]
+                    alpha: float, white_background: bool, scale: int = 1) -> List[np.ndarray]:
+  """The per-frame AdaIN baseline: each NeRF render in `base` stylized on its own, at the
+  stylized dataset's `scale` (its manifest's stylize_scale); on white-background (Blender)
+  scenes the background is put back to white, as in the stylized training views."""
+  frames = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style], alpha=alpha,
+                                      scale=scale) for b in base]
   if white_background:
     frames = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
               for f, b in zip(frames, base)]
@@ -142,10 +142,10 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
            for r, s, m in zip(runs, stack, methods)]
   rows, figure_rows = [], []
   for m, name in enumerate(tqdm(names, desc="scoring styles", disable=not progress)):
-    style = stylize_lib.cover_crop(images_lib.read_image(sources[name]["source"], max_side=1024),
-                                   scene.height, scene.width)
-    per_frame = per_frame_adain(decoder, encoder, base, style, sources[name]["alpha"],
-                                scene.white_background)
+    picture = images_lib.read_image(sources[name]["source"], max_side=1024)
+    style = stylize_lib.cover_crop(picture, scene.height, scene.width)  # what distances use.
+    per_frame = per_frame_adain(decoder, encoder, base, picture, sources[name]["alpha"],
+                                scene.white_background, manifest["stylize_scale"])
     candidates = [(method, [s["rgb"][m] for s in sw],
                    [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]} for s in sw])
                   for method, sw in zip(methods, swept)]

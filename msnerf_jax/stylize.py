@@ -155,12 +155,16 @@ def pad_to_multiple(image: np.ndarray, multiple: int = 8) -> np.ndarray:
 
 def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
                   styles: Sequence[np.ndarray], weights: Optional[Sequence[float]] = None,
-                  alpha: float = 1.0, preserve_color: bool = False) -> np.ndarray:
+                  alpha: float = 1.0, preserve_color: bool = False,
+                  scale: int = 1) -> np.ndarray:
   """Stylizes content [H, W, 3] with styles (each [h, w, 3]), blended by `weights`.
 
   Each style is resized to cover the content and centre-cropped to its size (reference
   behaviour for NeRF views); with `preserve_color`, each style's colours are first matched
-  to the content's. Returns [H, W, 3] float32 in [0, 1].
+  to the content's. With `scale` > 1 the content is enlarged (bicubic) to scale x its size,
+  stylized there (styles cover the enlarged size), and the result is box-averaged back: the
+  strokes are `scale` x finer relative to the scene, as when the reference code stylizes 400x400
+  Blender views that are then trained on at 100x100. Returns [H, W, 3] float32 in [0, 1].
   """
   if not styles:
     raise UserError("no style image given")
@@ -168,7 +172,12 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   check_weights(weights, len(styles))
   if not 0.0 <= alpha <= 1.0:
     raise UserError(f"--alpha {alpha}: must be in [0, 1]")
+  check_scale(scale)
   h, w = content.shape[:2]
+  if scale > 1:
+    big = stylize_image(decoder, encoder_params, images_lib.resize(content, h * scale, w * scale),
+                        styles, weights, alpha, preserve_color)
+    return images_lib.resize(big, h, w)
   padded = pad_to_multiple(content)
   ph, pw = padded.shape[:2]
   crops = np.stack([cover_crop(s, ph, pw) for s in styles])
@@ -178,6 +187,12 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
                      jnp.asarray(weights, jnp.float32), jnp.float32(alpha),
                      upsample=decoder.config.upsample)
   return np.asarray(out[0, :h, :w])
+
+
+def check_scale(scale: int) -> None:
+  """UserError unless `scale` (stylize_image's) is a whole number >= 1."""
+  if int(scale) != scale or scale < 1:
+    raise UserError(f"--stylize-scale {scale}: must be a whole number >= 1")
 
 
 def check_weights(weights: Sequence[float], n_styles: int) -> None:

@@ -145,6 +145,44 @@ def test_stylized_dataset_layout_and_continuation(world, capsys):
   assert json.load(open(manifest_path))["done"] == ["red", "blue", "original"]
 
 
+def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, capsys):
+  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data import images  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  out = str(tmp_path / "fine")
+  argv = ["stylize-scene", "--data", world["scene_dir"], "--decoder", world["decoder"],
+          "--styles", world["styles"][0], "--out", out]
+  assert cli.main(argv + ["--stylize-scale", "2"]) == 0
+  data, plain = load_stylized(out), load_stylized(world["stylized"])
+  assert json.load(open(os.path.join(out, "manifest.json")))["stylize_scale"] == 2
+  assert data.images.shape == (1, 6, 16, 16, 3)
+  # Each view is the 32x32 stylization of the enlarged view, box-averaged back to 16x16.
+  view = world["scene"].images[3]
+  decoder = stylize.load_decoder(world["decoder"])
+  picture = images.read_image(world["styles"][0])
+  big = stylize.stylize_image(decoder, vgg.load_vgg_params(), images.resize(view, 32, 32),
+                              [picture])
+  a = world["scene"].alphas[3][..., None] / 255.0  # Blender views keep their white background
+  want = big.reshape(16, 2, 16, 2, 3).mean(axis=(1, 3)) * a + (1 - a)
+  np.testing.assert_allclose(data.images[0, 3] / 255.0, want, atol=1.5 / 255)
+  assert np.abs(data.images[0].astype(int) - plain.images[0].astype(int)).mean() > 1
+  # Continuing the dataset at another scale is refused; a scale below 1 writes nothing.
+  capsys.readouterr()
+  _one_line_error(capsys, argv, "stylize_scale")
+  bad = str(tmp_path / "bad")
+  _one_line_error(capsys, argv[:-1] + [bad, "--stylize-scale", "0"], "--stylize-scale 0")
+  assert not os.path.exists(bad)
+  # A manifest written before the option existed reads as scale 1 (and can be continued).
+  manifest_path = os.path.join(world["stylized"], "manifest.json")
+  manifest = json.load(open(manifest_path))
+  manifest.pop("stylize_scale")
+  json.dump(manifest, open(manifest_path, "w"))
+  assert cli.main(["stylize-scene", "--data", world["scene_dir"], "--decoder", world["decoder"],
+                   "--styles", *world["styles"], "--include-original",
+                   "--out", world["stylized"]]) == 0
+  assert json.load(open(manifest_path))["stylize_scale"] == 1
+
+
 def test_trunk_is_frozen_and_heads_train(world, trained):
   run, nerf_run = load_run(trained), load_run(world["nerf"])
   assert run.kind == "multistyle" and run.step == 3

@@ -47,18 +47,21 @@ def _write_json(path: str, value: Any) -> None:
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                   style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
                   include_original: bool, out_dir: str, progress: bool = True,
-                  decoder: Optional[str] = None) -> Dict[str, Any]:
+                  decoder: Optional[str] = None, stylize_scale: int = 1) -> Dict[str, Any]:
   """Writes (or completes) the stylized dataset of a scene.
 
   Args:
     scene, data_config: the loaded scene and the DataConfig that loads it again.
-    stylize_fn(content [H, W, 3], style [h, w, 3], alpha) -> [H, W, 3]: the 2D stylizer.
+    stylize_fn(content [H, W, 3], style [h, w, 3], alpha, scale) -> [H, W, 3]: the 2D
+      stylizer (stylize.stylize_image's `scale`: stylize at scale x the view size).
     style_vector_fn(image [h, w, 3]) -> [1024]: the style vector of an image.
     style_paths, alphas: style images and their strengths (one alpha each).
     include_original: add the unstylized views as one more style named "original", whose
       vector is the mean style vector of the training views.
     out_dir: the dataset folder.
     decoder: the AdaIN run folder behind stylize_fn (recorded for evaluations).
+    stylize_scale: passed to stylize_fn and recorded, so evaluations stylize their per-frame
+      baseline the same way.
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
@@ -86,7 +89,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       "n_views": len(scene.images), "splits": {k: [int(i) for i in v]
                                                for k, v in scene.splits.items()},
       "views": [os.path.basename(p) for p in scene.image_paths], "styles": styles, "done": [],
-      "decoder": os.path.abspath(decoder) if decoder else None}
+      "decoder": os.path.abspath(decoder) if decoder else None,
+      "stylize_scale": int(stylize_scale)}
   path = os.path.join(out_dir, MANIFEST)
   if os.path.exists(out_dir) and not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: is a file, expected a folder")
@@ -125,7 +129,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
         continue
       view = scene.images[i]
       if name != ORIGINAL:
-        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"]))
+        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"], stylize_scale))
         if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
           a = scene.alphas[i][..., None].astype(np.float32) / 255.0
           view = view * a + (1.0 - a)
@@ -150,6 +154,7 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   required = ("data", "height", "width", "n_views", "splits", "styles", "done")
   if not isinstance(manifest, dict) or any(k not in manifest for k in required):
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
+  manifest.setdefault("stylize_scale", 1)  # datasets made before the option existed.
   return manifest
 
 
