@@ -61,7 +61,9 @@ def _train(world, density_aware):
   run = str(world["root"] / f"ms_{density_aware}")
   argv = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
           "--out", run, "--steps", "3", "--batch-rays", "32", "--checkpoint-every", "3"]
-  assert cli.main(argv + (["--density-aware"] if density_aware else [])) == 0
+  # The density-aware run also gets extra head layers (their training and freezing is tested).
+  extra = ["--density-aware", "--rgb-extra-layers", "1", "--density-extra-layers", "1"]
+  assert cli.main(argv + (extra if density_aware else [])) == 0
   return run
 
 
@@ -186,6 +188,8 @@ def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, 
 def test_trunk_is_frozen_and_heads_train(world, trained):
   run, nerf_run = load_run(trained), load_run(world["nerf"])
   assert run.kind == "multistyle" and run.step == 3
+  extra = {"rgb_extra_0", "density_extra_0"} if run.config.density_aware else set()
+  assert {k for k in run.params["fine"] if "_extra_" in k} == extra
   for net in ("coarse", "fine"):
     got, want = leaves_with_paths(run.params[net]["trunk"]), leaves_with_paths(
         nerf_run.params[net]["trunk"])
@@ -298,6 +302,14 @@ def test_nerf_run_of_another_architecture_is_refused(world, tmp_path, capsys):
   _one_line_error(capsys, ["multistyle", "train", "--nerf", bad, "--stylized", world["stylized"],
                            "--out", str(tmp_path / "run"), "--steps", "1"],
                   "another architecture")
+
+
+def test_negative_extra_layers_are_refused(world, tmp_path, capsys):
+  out = str(tmp_path / "run")
+  _one_line_error(capsys, ["multistyle", "train", "--nerf", world["nerf"], "--stylized",
+                           world["stylized"], "--out", out, "--rgb-extra-layers", "-1"],
+                  "--rgb-extra-layers -1")
+  assert not os.path.exists(out)
 
 
 def test_unreadable_style_writes_nothing(world, tmp_path, capsys):

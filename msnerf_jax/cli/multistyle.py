@@ -60,6 +60,10 @@ def register(commands, formatter):
   p.add_argument("--lr", type=float, default=_DEFAULTS.lr_init,
                  help=f"initial learning rate (decays exponentially to lr/10 at step "
                       f"{_DEFAULTS.lr_decay_steps})")
+  p.add_argument("--rgb-extra-layers", type=int, default=_DEFAULTS.rgb_extra_layers,
+                 metavar="N", help="extra W/2-wide layers in the new colour MLP")
+  p.add_argument("--density-extra-layers", type=int, default=_DEFAULTS.density_extra_layers,
+                 metavar="N", help="extra W-wide layers in the new density MLP (--density-aware)")
   p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
                  help="steps between checkpoints")
   p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
@@ -168,12 +172,16 @@ def cmd_train(args):
     raise UserError(f"--steps {args.steps}: must be >= 1")
   if not args.lr > 0:
     raise UserError(f"--lr {args.lr}: must be positive")
+  for flag in ("rgb_extra_layers", "density_extra_layers"):
+    if getattr(args, flag) < 0:
+      raise UserError(f"--{flag.replace('_', '-')} {getattr(args, flag)}: must be >= 0")
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
   config = config_lib.MultistyleConfig(
       density_aware=args.density_aware, steps=args.steps, batch_rays=args.batch_rays,
       lr_init=args.lr, lr_final=args.lr / 10, checkpoint_every=args.checkpoint_every,
-      seed=args.seed)
+      seed=args.seed, rgb_extra_layers=args.rgb_extra_layers,
+      density_extra_layers=args.density_extra_layers)
   stylized = load_stylized(args.stylized)
   print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
         f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")
