@@ -4,8 +4,10 @@ set -euo pipefail
 D="${MSNERF_DATA:-$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)/shared/data}"
 S="$D/styles"
 case "${1:-}" in
-  lego) DATA="$D/nerf_synthetic/lego"; SPLIT=val ;;   # 100x100 (--downscale 8), 9 val views
-  fern) DATA="$D/nerf_llff_data/fern"; SPLIT=test ;;  # 504x378 (factor 8), every 8th view held out
+  # STYLIZE_SCALE: views are stylized at the reference code's resolution (lego 400x400, fern
+  # 504x378), then trained on at ours (stylize-scene --stylize-scale).
+  lego) DATA="$D/nerf_synthetic/lego"; SPLIT=val; STYLIZE_SCALE=4 ;;  # 100x100 (--downscale 8), 9 val views
+  fern) DATA="$D/nerf_llff_data/fern"; SPLIT=test; STYLIZE_SCALE=1 ;; # 504x378 (factor 8), every 8th view held out
   *) echo "first argument: lego or fern" >&2; exit 2 ;;
 esac
 SCENE="$1"

@@ -7,7 +7,7 @@
 . "$(dirname "$0")/common.sh" "$1"
 NERF="$2"; DECODER="$3"; OUT="$4"; STEPS="${5:-3000}"
 msnerf stylize-scene --data "$DATA" --downscale $DOWNSCALE --decoder "$DECODER" \
-  --styles "${STYLES[@]}" --include-original --out "$OUT/styles"
+  --styles "${STYLES[@]}" --include-original --stylize-scale $STYLIZE_SCALE --out "$OUT/styles"
 msnerf multistyle train --nerf "$NERF" --stylized "$OUT/styles" --out "$OUT/ms" --steps "$STEPS"
 msnerf multistyle eval --run "$OUT/ms" --split $SPLIT
 msnerf render --run "$OUT/ms" --out "$OUT/video" --style mondrian --morph asheville mondrian \
