@@ -1,6 +1,7 @@
 """Stylizing images with a trained AdaIN decoder: cover-crop styles, alpha, blends, colour."""
 
 import dataclasses
+import numbers
 import os
 from typing import Any, Optional, Sequence
 
@@ -191,7 +192,7 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
 
 def check_scale(scale: int) -> None:
   """UserError unless `scale` (stylize_image's) is a whole number >= 1."""
-  if int(scale) != scale or scale < 1:
+  if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
     raise UserError(f"--stylize-scale {scale}: must be a whole number >= 1")
 
 

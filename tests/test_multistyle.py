@@ -174,6 +174,13 @@ def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, 
   bad = str(tmp_path / "bad")
   _one_line_error(capsys, argv[:-1] + [bad, "--stylize-scale", "0"], "--stylize-scale 0")
   assert not os.path.exists(bad)
+  # A manifest holding a scale that is not a whole number is refused, naming the file.
+  manifest_path = os.path.join(out, "manifest.json")
+  manifest = json.load(open(manifest_path))
+  manifest["stylize_scale"] = "4"
+  json.dump(manifest, open(manifest_path, "w"))
+  _one_line_error(capsys, ["multistyle", "train", "--nerf", world["nerf"], "--stylized", out,
+                           "--out", str(tmp_path / "run")], "manifest.json", "stylize_scale")
   # A manifest written before the option existed reads as scale 1 (and can be continued).
   manifest_path = os.path.join(world["stylized"], "manifest.json")
   manifest = json.load(open(manifest_path))

@@ -1,7 +1,8 @@
 """The N x M stylized scene dataset on disk: every view of a scene stylized with every style.
 
 Layout of a dataset folder:
-  manifest.json           scene, size, splits, the styles (name, source, alpha) and which are done
+  manifest.json           scene, size, splits, the styles (name, source, alpha), which are done,
+                          the decoder and the stylize scale
   poses.npy               [N, 3, 4] camera-to-world of the views (checked against a NeRF run)
   <style>/style_vector.npy  the style's 1024-d vector
   <style>/0000.png ...    view i stylized (PNG, the scene's resolution)
@@ -154,7 +155,9 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   required = ("data", "height", "width", "n_views", "splits", "styles", "done")
   if not isinstance(manifest, dict) or any(k not in manifest for k in required):
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
-  manifest.setdefault("stylize_scale", 1)  # datasets made before the option existed.
+  scale = manifest.setdefault("stylize_scale", 1)  # datasets made before the option existed.
+  if isinstance(scale, bool) or not isinstance(scale, int) or scale < 1:
+    raise UserError(f"{path}: stylize_scale is {scale!r}, expected a whole number >= 1")
   return manifest
 
 
