@@ -636,7 +636,9 @@ def test_8000x8000_style_is_downscaled_while_decoding(world, tmp_path, capsys):
   h, w, extra_mib = peak(1024)
   assert (h, w) == (1024, 1024) and extra_mib < 60, (h, w, extra_mib)
   # The measurement sees a full decode (8000 x 8000 x 3 bytes = 183 MiB) when there is one.
-  assert peak(8000)[2] > 150
+  # (ru_maxrss is a peak: the part of the decode that fits under the peak the imports already
+  # reached is not counted, so the delta varies from run to run: one CI run measured 136 MiB.)
+  assert peak(8000)[2] > 100
   # And through the CLI: stylizing with it as the style works.
   out = tmp_path / "out"
   capsys.readouterr()
