@@ -44,10 +44,9 @@ from msnerf_jax.train import multistyle
 from msnerf_jax.train import nerf as nerf_lib
 
 
-def style_image(spec, sources, height, width):
-  """The image behind a style (a training style's source file, or a file) at the view size."""
-  path = sources.get(spec, spec)
-  return stylize_lib.cover_crop(images_lib.read_image(path, max_side=1024), height, width)
+def style_picture(spec, sources):
+  """The image behind a style (a training style's source file, or a file)."""
+  return images_lib.read_image(sources.get(spec, spec), max_side=1024)
 
 
 def distance(encoder, frames, image) -> float:
@@ -69,8 +68,8 @@ def main():
   t0 = time.time()
   run, scene = load_run_and_scene(args.run, "multistyle")
   vectors = multistyle.style_vectors(run)
-  sources = {s["name"]: s["source"] for s in read_manifest(run.record["stylized"])["styles"]
-             if s["source"]}
+  manifest = read_manifest(run.record["stylized"])
+  sources = {s["name"]: s["source"] for s in manifest["styles"] if s["source"]}
   encoder, cache = vgg.load_vgg_params(), {}
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses), args.views + 1)[:-1]
                              .round().astype(int)]
@@ -78,7 +77,7 @@ def main():
                                                     np.stack(styles), args.chunk)["rgb"]
                            for c2w in poses]  # [views][K, H, W, 3]: one sweep per view
   ts = np.linspace(0.0, 1.0, max(2, args.steps))
-  h, w = scene.height, scene.width
+  at_view_size = lambda picture: stylize_lib.cover_crop(picture, scene.height, scene.width)
   rows, grid = [], []
   if args.mode in ("interp", "strength"):
     if args.mode == "interp":
@@ -86,12 +85,12 @@ def main():
         parser.error("interp takes two styles, A and B")
       a, b = args.styles
       ends = [resolve_style(s, vectors, cache) for s in (a, b)]
-      images = {a: style_image(a, sources, h, w), b: style_image(b, sources, h, w)}
+      images = {x: at_view_size(style_picture(x, sources)) for x in (a, b)}
     else:
       if len(args.styles) != 1 or "original" not in vectors:
         parser.error("strength takes one style, and a run trained with --include-original")
       ends = [vectors["original"], resolve_style(args.styles[0], vectors, cache)]
-      images = {args.styles[0]: style_image(args.styles[0], sources, h, w)}
+      images = {args.styles[0]: at_view_size(style_picture(args.styles[0], sources))}
       nerf_run = load_run(run.record["nerf_run"])
       photo = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w,
                                     args.chunk)["rgb"] for c2w in poses]
@@ -108,17 +107,16 @@ def main():
                                                    for f, p in zip(frames, photo)]))
       rows.append(row)
   else:
-    manifest = read_manifest(run.record["stylized"])
     decoder = stylize_lib.load_decoder(manifest["decoder"])
     nerf_run = load_run(run.record["nerf_run"])
     base = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w, args.chunk)
             for c2w in poses]
     for spec in args.styles:
-      image = style_image(spec, sources, h, w)
+      picture = style_picture(spec, sources)
+      image = at_view_size(picture)  # what the distances use; the baseline covers its own size.
       ours = [s[0] for s in render([resolve_style(spec, vectors, cache)])]
-      per_frame = evaluate.per_frame_adain(
-          decoder, encoder, base, images_lib.read_image(sources.get(spec, spec), max_side=1024),
-          1.0, scene.white_background, manifest["stylize_scale"])
+      per_frame = evaluate.per_frame_adain(decoder, encoder, base, picture, 1.0,
+                                           scene.white_background, manifest["stylize_scale"])
       d_ours, d_adain = distance(encoder, ours, image), distance(encoder, per_frame, image)
       rows.append({"style": os.path.basename(spec), "trained on": spec in vectors,
                    "multi-style": d_ours, "per-frame AdaIN": d_adain,
@@ -129,7 +127,8 @@ def main():
   md = evaluate.markdown_table(rows, list(rows[0]))
   seconds = time.time() - t0
   where = f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'CPU'}"
-  md.append(f"\n{args.mode} on {args.run}, {args.views} views of {w}x{h}: {seconds:.0f} s ({where})")
+  md.append(f"\n{args.mode} on {args.run}, {args.views} views of {scene.width}x{scene.height}: "
+            f"{seconds:.0f} s ({where})")
   images_lib.atomic_write_bytes(os.path.join(args.out, "results.md"), "\n".join(md).encode())
   images_lib.atomic_write_bytes(os.path.join(args.out, "results.json"),
                                 json.dumps({"mode": args.mode, "styles": args.styles,

@@ -190,10 +190,10 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   return np.asarray(out[0, :h, :w])
 
 
-def check_scale(scale: int) -> None:
-  """UserError unless `scale` (stylize_image's) is a whole number >= 1."""
+def check_scale(scale: int, what: str = "--stylize-scale") -> None:
+  """UserError unless `scale` (stylize_image's) is a whole number >= 1; `what` names its source."""
   if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
-    raise UserError(f"--stylize-scale {scale}: must be a whole number >= 1")
+    raise UserError(f"{what} {scale!r}: must be a whole number >= 1")
 
 
 def check_weights(weights: Sequence[float], n_styles: int) -> None:

@@ -143,7 +143,6 @@ def cmd_stylize_scene(args):
   from msnerf_jax.data.scene import load_scene
   from msnerf_jax.models import vgg
   alphas = args.alphas if args.alphas is not None else [1.0] * len(args.styles)
-  stylize_lib.check_scale(args.stylize_scale)
   decoder = stylize_lib.load_decoder(args.decoder)
   scene, data = load_scene(config_lib.DataConfig(path=os.path.abspath(args.data),
                                                  downscale=args.downscale))
