@@ -615,16 +615,21 @@ def _huge_jpeg(path, side=8000):
   return str(path)
 
 
+# Peak RSS of this process's own memory (VmHWM, reset by exec). Not ru_maxrss: Linux carries
+# that over from the parent at fork, so under a large pytest process it hid the decode.
 PEAK = textwrap.dedent("""
-    import resource, sys
+    import sys
     from msnerf_jax.data import images
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    def high_water_kib():
+      with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+    base = high_water_kib()
     image = images.read_image(sys.argv[1], max_side=int(sys.argv[2]))
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print(image.shape[0], image.shape[1], (peak - base) // 1024)
+    print(image.shape[0], image.shape[1], (high_water_kib() - base) // 1024)
 """)
 
 
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="measures Linux VmHWM")
 def test_8000x8000_style_is_downscaled_while_decoding(world, tmp_path, capsys):
   path = _huge_jpeg(tmp_path / "huge.jpg")
   # Decoding for a style vector (max side 1024): JPEG draft mode decodes at 1/8 scale.
@@ -636,9 +641,7 @@ def test_8000x8000_style_is_downscaled_while_decoding(world, tmp_path, capsys):
   h, w, extra_mib = peak(1024)
   assert (h, w) == (1024, 1024) and extra_mib < 60, (h, w, extra_mib)
   # The measurement sees a full decode (8000 x 8000 x 3 bytes = 183 MiB) when there is one.
-  # (ru_maxrss is a peak: the part of the decode that fits under the peak the imports already
-  # reached is not counted, so the delta varies from run to run: one CI run measured 136 MiB.)
-  assert peak(8000)[2] > 100
+  assert peak(8000)[2] > 150
   # And through the CLI: stylizing with it as the style works.
   out = tmp_path / "out"
   capsys.readouterr()
