@@ -58,6 +58,24 @@ def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
   assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
 
 
+def test_architecture_flags_reach_the_config_and_the_model(tiny_blender, tmp_path):
+  run = str(tmp_path / "run")
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "32",
+             "--steps", "1", "--net-depth", "4", "--net-width", "24", "--n-coarse", "4",
+             "--n-fine", "6")
+  assert r.returncode == 0, r.stderr[-3000:]
+  config = json.load(open(os.path.join(run, "run.json")))["config"]
+  assert (config["net_depth"], config["net_width"], config["skip_layer"]) == (4, 24, 2)
+  assert (config["n_coarse"], config["n_fine"]) == (4, 6)
+  from msnerf_jax import load_run  # pylint: disable=g-import-not-at-top
+  trunk = load_run(run).params["coarse"]["trunk"]
+  kernels = sorted((k, v["kernel"].shape) for k, v in trunk.items() if k.startswith("point_"))
+  # The skip connection sits in the middle: point_3 sees the encoded input again.
+  assert kernels == [("point_0", (63, 24)), ("point_1", (24, 24)), ("point_2", (24, 24)),
+                     ("point_3", (63 + 24, 24))]
+  assert trunk["view"]["kernel"].shape == (24 + 27, 12)
+
+
 def test_bad_inputs_exit_2(tmp_path, tiny_blender):
   (tmp_path / "file").write_text("x")
   cases = [

@@ -33,6 +33,13 @@ def register(commands, formatter):
   p.add_argument("--batch-rays", type=int, default=None, help="rays per step (default: preset's)")
   p.add_argument("--checkpoint-every", type=int, default=None,
                  help="steps between checkpoints (default: preset's)")
+  p.add_argument("--net-depth", type=int, default=None,
+                 help="trunk layers (default: preset's; the skip connection goes to the middle)")
+  p.add_argument("--net-width", type=int, default=None, help="trunk width (default: preset's)")
+  p.add_argument("--n-coarse", type=int, default=None,
+                 help="stratified samples per ray (default: preset's)")
+  p.add_argument("--n-fine", type=int, default=None,
+                 help="extra hierarchical samples per ray (default: preset's)")
   p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
   p.add_argument("--devices", type=int, default=None,
                  help="local devices to train on (default: all; gradients are averaged)")
@@ -69,8 +76,10 @@ def cmd_train(args):
   data_config = config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale)
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  if args.steps is not None and args.steps < 1:
-    raise UserError(f"--steps {args.steps}: must be >= 1")
+  for flag in ("steps", "net_depth", "net_width", "n_coarse", "n_fine"):
+    value = getattr(args, flag)
+    if value is not None and value < 1:
+      raise UserError(f"--{flag.replace('_', '-')} {value}: must be >= 1")
   if (args.stylized is None) != (args.style is None):
     raise UserError("--stylized and --style go together (a dataset folder and one of its styles)")
   scene, data_config = load_scene(data_config)
@@ -81,7 +90,11 @@ def cmd_train(args):
     scene = style_views(style["stylized"], args.style, scene)
   config = config_lib.nerf_preset(args.preset, data_config.format, steps=args.steps,
                                   batch_rays=args.batch_rays, seed=args.seed,
-                                  checkpoint_every=args.checkpoint_every)
+                                  checkpoint_every=args.checkpoint_every,
+                                  net_depth=args.net_depth, net_width=args.net_width,
+                                  n_coarse=args.n_coarse, n_fine=args.n_fine,
+                                  skip_layer=None if args.net_depth is None
+                                  else args.net_depth // 2)
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; preset {args.preset}"
         + (f"; style {args.style} of {args.stylized}" if style else ""))
