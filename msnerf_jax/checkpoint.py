@@ -16,8 +16,14 @@ RUN_FILE = "run.json"
 CHECKPOINT_DIR = "checkpoints"
 
 
-def read_run_file(run_dir: str) -> Dict[str, Any]:
-  """The parsed run.json of a run folder ({"kind", "config", ...})."""
+# The command that makes a run of each kind (named when another kind is given).
+TRAIN_COMMANDS = {"nerf": "msnerf nerf train", "adain": "msnerf adain train",
+                  "multistyle": "msnerf multistyle train"}
+
+
+def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
+  """The parsed run.json of a run folder ({"kind", "config", ...}); with `kind`, a UserError
+  unless the run is of that kind."""
   if not os.path.exists(run_dir):
     raise UserError(f"{run_dir}: no such run folder")
   if not os.path.isdir(run_dir):
@@ -32,6 +38,9 @@ def read_run_file(run_dir: str) -> Dict[str, Any]:
     raise UserError(f"{path}: malformed JSON ({e})") from None
   if not isinstance(run, dict) or "kind" not in run or "config" not in run:
     raise UserError(f"{path}: missing 'kind' or 'config'")
+  if kind is not None and run["kind"] != kind:
+    raise UserError(f"{path}: a {run['kind']!r} run, not a {kind!r} run (train one with "
+                    f"`{TRAIN_COMMANDS.get(kind, 'msnerf')}`)")
   return run
 
 
@@ -57,6 +66,9 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
     if saved.get("kind") != kind:
       raise UserError(f"{run_dir}: holds a {saved.get('kind')!r} run, not {kind!r}; "
                       "choose another --out")
+    # A run.json written before a config field existed holds that field's default.
+    saved["config"] = config_lib.to_dict(config_lib.from_dict(
+        config_lib.config_class(kind), saved["config"], path))
     # Compare what defines the run; "steps" may grow to train longer.
     mismatch = config_lib.diff(_defining(saved), _defining(record))
     if mismatch:
@@ -136,13 +148,14 @@ class Run:
   record: Dict[str, Any]
 
 
-def load_run(run_dir: str) -> Run:
-  """Loads a run folder: config from run.json and params of its latest checkpoint.
+def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
+  """Loads a run folder: config from run.json and params of its latest checkpoint; with
+  `kind`, refuses a run of another kind before reading any checkpoint.
 
   Returns:
     `Run` with `.config`, `.params` (nested dict of numpy arrays) and `.step`.
   """
-  record = read_run_file(run_dir)
+  record = read_run_file(run_dir, kind)
   kind = record["kind"]
   config = config_lib.from_dict(config_lib.config_class(kind), record["config"],
                                 os.path.join(run_dir, RUN_FILE))

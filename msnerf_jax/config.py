@@ -175,6 +175,11 @@ class MultistyleConfig:
   rgb_extra_layers: int = 0  # extra W/2 layers in the new rgb MLP (W -> W/2 -> ... -> 3).
   density_extra_layers: int = 0  # extra W layers in the new density MLP (2W -> W -> ... -> 1).
   batch_rays: int = 1024  # pixels per step; each supervises every style (standard variant).
+  # Patch style loss (an option beyond METHOD.md, off at 0): weight of the AdaIN statistics
+  # loss between rendered patches and the same patches of the stylized targets.
+  style_weight: float = 0.0
+  style_patch: int = 32  # side of each square patch, in pixels.
+  style_patches: int = 1  # patches per step (split across devices like the pixels).
   steps: int = 3000
   lr_init: float = 1e-3
   lr_final: float = 1e-4

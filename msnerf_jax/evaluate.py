@@ -96,10 +96,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   """
   t0 = time.time()
   run_dirs = [run_dirs] if isinstance(run_dirs, str) else list(run_dirs)
-  runs = [load_run(d) for d in run_dirs]
-  for d, run in zip(run_dirs, runs):
-    if run.kind != "multistyle":
-      raise UserError(f"{d}: a {run.kind!r} run; `msnerf evaluate --run` takes multi-style runs")
+  runs = [load_run(d, "multistyle") for d in run_dirs]
   run = runs[0]
   scene, _ = scene_of(run)
   manifest = read_manifest(run.record["stylized"])
@@ -126,7 +123,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   if not decoder_dir:
     raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
   decoder = stylize_lib.load_decoder(decoder_dir)
-  nerf_run = load_run(run.record["nerf_run"])
+  nerf_run = load_run(run.record["nerf_run"], "nerf")
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
                              .round().astype(int)] if frames else scene.render_poses

@@ -78,10 +78,7 @@ def load_decoder(run_dir: str) -> Decoder:
     encoder, or its checkpoint has other layer sizes.
   """
   run_file = os.path.join(run_dir, checkpoint_lib.RUN_FILE)
-  record = checkpoint_lib.read_run_file(run_dir)
-  if record["kind"] != "adain":
-    raise UserError(f"{run_file}: a {record['kind']!r} run, not an AdaIN decoder "
-                    "(train one with `msnerf adain train`)")
+  record = checkpoint_lib.read_run_file(run_dir, "adain")
   config = config_lib.from_dict(config_lib.AdainConfig, record["config"], run_file)
   if config.encoder != vgg.ENCODER_NAME:
     raise UserError(f"{run_file}: decoder trained for encoder {config.encoder!r}, "

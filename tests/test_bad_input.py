@@ -432,7 +432,8 @@ def case_style_1x1_in_training_folder(world, tmp):
 
 def case_decoder_is_a_nerf_run(world, tmp):
   return ["adain", "stylize", "--decoder", world["nerf"], "--content", world["content"],
-          "--style", world["style"], "--out", tmp / "out"], ["not an AdaIN decoder"], None
+          "--style", world["style"], "--out", tmp / "out"], \
+      ["not a 'adain' run", "`msnerf adain train`"], None
 
 
 def _ms_train(world, tmp, nerf_run=None, stylized=None, out=None):
@@ -451,7 +452,8 @@ def case_multistyle_nerf_of_another_architecture(world, tmp):
 
 
 def case_multistyle_nerf_is_an_adain_run(world, tmp):
-  return _ms_train(world, tmp, nerf_run=world["decoder"]), ["not a NeRF run"], None
+  return _ms_train(world, tmp, nerf_run=world["decoder"]), \
+      ["not a 'nerf' run", "`msnerf nerf train`"], None
 
 
 def case_stylized_of_another_size(world, tmp):

@@ -319,6 +319,17 @@ def test_negative_extra_layers_are_refused(world, tmp_path, capsys):
   assert not os.path.exists(out)
 
 
+def test_bad_style_loss_settings_are_refused(world, tmp_path, capsys):
+  out = str(tmp_path / "run")
+  base = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
+          "--out", out, "--steps", "1"]
+  _one_line_error(capsys, base + ["--style-weight", "-1"], "style weight -1")
+  _one_line_error(capsys, base + ["--style-weight", "1", "--style-patch", "8"], "style patch 8",
+                  "16")
+  _one_line_error(capsys, base + ["--style-weight", "1", "--style-patch", "17"], "style patch 17")
+  assert not os.path.exists(out)
+
+
 def test_unreadable_style_writes_nothing(world, tmp_path, capsys):
   broken = tmp_path / "broken.png"
   broken.write_bytes(open(world["styles"][0], "rb").read()[:40])
@@ -353,13 +364,19 @@ TWO_DEVICES = textwrap.dedent("""
     data = load_stylized({stylized!r}, progress=False)
     scene, _ = load_scene(DataConfig(path={scene!r}))
     config = MultistyleConfig(nerf=nerf_run.config, batch_rays=32, style_hidden=32, style_hidden2=16,
-                              density_aware={density_aware})
+                              density_aware={density_aware}, style_weight={style_weight},
+                              style_patch=16, style_patches=2)
+    encoder = None
+    if config.style_weight > 0:
+      from msnerf_jax.models import vgg
+      encoder = vgg.load_vgg_params()
     images = jnp.asarray(np.moveaxis(data.images[:, :4], 0, 3))
     batch = ms.sample_batch(jax.random.PRNGKey(3), images, jnp.asarray(scene.c2w[:4]),
                             jnp.asarray(scene.K), config, scene)
     fresh = lambda: ms.init_state(config, nerf_run.params)
-    one, s1 = ms.compile_train_step(config, data.vectors, True, 1)(fresh(), batch)
-    two, s2 = ms.compile_train_step(config, data.vectors, True, 2)(
+    assert ("patches" in batch) == (config.style_weight > 0)
+    one, s1 = ms.compile_train_step(config, data.vectors, True, 1, encoder)(fresh(), batch)
+    two, s2 = ms.compile_train_step(config, data.vectors, True, 2, encoder)(
         state_lib.replicate(fresh()), state_lib.shard(batch, 2))
     two = state_lib.unreplicate(two)
     start = fresh().params
@@ -371,15 +388,78 @@ TWO_DEVICES = textwrap.dedent("""
     print("worst", worst, "moved", moved)
     assert moved > 1e-4 and worst < 1e-3 * moved, (worst, moved)
     assert abs(float(s1["loss"]) - float(np.asarray(s2["loss"])[0])) < 1e-6
+    if config.style_weight > 0:
+      assert float(s1["style"]) > 0
+      assert abs(float(s1["style"]) - float(np.asarray(s2["style"])[0])) < 1e-4 * float(s1["style"])
 """)
 
 
-def test_two_devices_give_the_same_update_as_one(world):
+@pytest.mark.parametrize("density_aware, style_weight", [(True, 0.0), (False, 0.01)])
+def test_two_devices_give_the_same_update_as_one(world, density_aware, style_weight):
   code = TWO_DEVICES.format(tests=TESTS, nerf=world["nerf"], stylized=world["stylized"],
-                            scene=world["scene_dir"], density_aware=True)
+                            scene=world["scene_dir"], density_aware=density_aware,
+                            style_weight=style_weight)
   result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)
   assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_patches_are_whole_pixel_blocks_of_one_view_in_every_style(world):
+  data = load_stylized(world["stylized"], progress=False)
+  scene = world["scene"]
+  config = multistyle.MultistyleConfig(nerf=load_run(world["nerf"]).config, style_weight=1.0,
+                                       style_patch=5, style_patches=3)
+  images = np.moveaxis(data.images[:, :4], 0, 3)  # [N, H, W, M, 3]
+  patches = multistyle.sample_patches(jax.random.PRNGKey(0), jnp.asarray(images),
+                                      jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config,
+                                      scene)
+  assert patches["rgb"].shape == (3, 5, 5, len(data.names), 3)
+  assert patches["rays"]["origins"].shape == (3, 25, 3)
+  assert patches["random"]["u_fine"].shape == (3, 25, config.nerf.n_fine)
+  for p in range(3):
+    rgb, directions = np.asarray(patches["rgb"][p]), np.asarray(patches["rays"]["directions"][p])
+    found = [(v, r, c) for v in range(4) for r in range(12) for c in range(12)
+             if np.array_equal(images[v, r:r + 5, c:c + 5], rgb) and np.allclose(
+                 np.asarray(scene.camera_rays(scene.c2w[v])["directions"])[r:r + 5, c:c + 5]
+                 .reshape(25, 3), directions, atol=1e-6)]
+    assert found, f"patch {p} is not a 5x5 block of one view (same pixels and rays)"
+
+
+def test_style_loss_pulls_the_heads_and_resumes_bit_identically(world, tmp_path):
+  data = load_stylized(world["stylized"], progress=False)
+  nerf_run = load_run(world["nerf"])
+  config = multistyle.MultistyleConfig(nerf=nerf_run.config, batch_rays=32, style_hidden=32,
+                                       style_hidden2=16, style_weight=1.0, style_patch=16)
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  encoder = vgg.load_vgg_params()
+  scene = world["scene"]
+  batch = multistyle.sample_batch(
+      jax.random.PRNGKey(1), jnp.asarray(np.moveaxis(data.images[:, :4], 0, 3)),
+      jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, scene)
+  trainable, frozen = multistyle.split_frozen(multistyle.init_state(config, nerf_run.params).params)
+  field = multistyle.MultistyleField(config)
+
+  def style_only(heads):
+    return multistyle.patch_style_loss(field, multistyle.merge(heads, frozen), batch["patches"],
+                                       jnp.asarray(data.vectors), encoder, config, True)
+
+  value, grads = jax.value_and_grad(style_only)(trainable)
+  assert np.isfinite(float(value)) and float(value) > 0
+  # The style loss reaches every head of the fine network that renders the patches.
+  for path, g in leaves_with_paths(grads["fine"]):
+    assert np.any(g != 0), f"no style gradient for fine {path}"
+  # Training with it: a run stopped after 2 steps and resumed to 4 equals 4 steps at once.
+  argv = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
+          "--batch-rays", "32", "--checkpoint-every", "2", "--style-weight", "0.5",
+          "--style-patch", "16"]
+  split, whole = str(tmp_path / "split"), str(tmp_path / "whole")
+  assert cli.main(argv + ["--out", split, "--steps", "2"]) == 0
+  assert cli.main(argv + ["--out", split, "--steps", "4"]) == 0
+  assert cli.main(argv + ["--out", whole, "--steps", "4"]) == 0
+  a, b = load_run(split), load_run(whole)
+  assert a.step == b.step == 4 and a.config.style_weight == 0.5
+  for (path, x), (_, y) in zip(leaves_with_paths(a.params), leaves_with_paths(b.params)):
+    assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), path
 
 
 @pytest.fixture(scope="module")

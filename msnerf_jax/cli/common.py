@@ -28,10 +28,7 @@ def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.checkpoint import load_run, scene_of
-  from msnerf_jax.errors import UserError
-  run = load_run(run_dir)
-  if run.kind != kind:
-    raise UserError(f"{run_dir}: is a {run.kind!r} run, not a {kind!r} run")
+  run = load_run(run_dir, kind)
   return run, scene_of(run)[0]
 
 

@@ -64,6 +64,13 @@ def register(commands, formatter):
                  metavar="N", help="extra W/2-wide layers in the new colour MLP")
   p.add_argument("--density-extra-layers", type=int, default=_DEFAULTS.density_extra_layers,
                  metavar="N", help="extra W-wide layers in the new density MLP (--density-aware)")
+  p.add_argument("--style-weight", type=float, default=_DEFAULTS.style_weight, metavar="W",
+                 help="also match the VGG feature statistics of whole rendered patches to the "
+                      "stylized views' (AdaIN style loss; beyond the paper's method; 0 = off)")
+  p.add_argument("--style-patch", type=int, default=_DEFAULTS.style_patch, metavar="S",
+                 help="side of each patch of the style loss, in pixels")
+  p.add_argument("--style-patches", type=int, default=_DEFAULTS.style_patches, metavar="N",
+                 help="patches per step of the style loss")
   p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
                  help="steps between checkpoints")
   p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
@@ -180,7 +187,8 @@ def cmd_train(args):
       density_aware=args.density_aware, steps=args.steps, batch_rays=args.batch_rays,
       lr_init=args.lr, lr_final=args.lr / 10, checkpoint_every=args.checkpoint_every,
       seed=args.seed, rgb_extra_layers=args.rgb_extra_layers,
-      density_extra_layers=args.density_extra_layers)
+      density_extra_layers=args.density_extra_layers, style_weight=args.style_weight,
+      style_patch=args.style_patch, style_patches=args.style_patches)
   stylized = load_stylized(args.stylized)
   print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
         f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")

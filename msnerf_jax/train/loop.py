@@ -5,7 +5,7 @@ import functools
 import json
 import os
 import time
-from typing import Any, Callable, Dict, Optional
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import jax
 import numpy as np
@@ -16,13 +16,22 @@ from msnerf_jax.errors import UserError
 from msnerf_jax.train import state as state_lib
 
 
-def compile_step(step_fn: Callable, n_devices: int) -> Callable:
-  """jax.jit (one device) or jax.pmap over axis "batch" (several) of
-  `step_fn(state, batch, axis_name=None)`; the state is donated."""
+def compile_step(step_fn: Callable, n_devices: int, constants: Tuple[Any, ...] = ()
+                 ) -> Callable:
+  """`(state, batch) -> (state, stats)`: jax.jit (one device) or jax.pmap over axis "batch"
+  (several) of `step_fn(state, batch, *constants, axis_name=None)`; the state is donated.
+
+  `constants` (pytrees every step reads unchanged: style vectors, a frozen encoder) are put
+  on the device(s) once, here, and passed as arguments rather than baked into the program.
+  """
   if n_devices == 1:
-    return jax.jit(step_fn, donate_argnums=0)
-  return jax.pmap(functools.partial(step_fn, axis_name="batch"), axis_name="batch",
-                  donate_argnums=0)
+    compiled = jax.jit(step_fn, donate_argnums=0)
+    placed = jax.device_put(constants)
+  else:
+    compiled = jax.pmap(functools.partial(step_fn, axis_name="batch"), axis_name="batch",
+                        donate_argnums=0)
+    placed = state_lib.replicate(constants, jax.local_devices()[:n_devices])
+  return lambda state, batch: compiled(state, batch, *placed)
 
 
 def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int], Any], *,
@@ -49,7 +58,7 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
     state = state_lib.restore_state(state, checkpoints.restore(state_lib.checkpoint_tree(state)))
     start = int(state.step)
   if n_devices > 1:
-    state = state_lib.replicate(state)
+    state = state_lib.replicate(state, jax.local_devices()[:n_devices])
   t0 = time.time()
   stats, history = {}, []
   bar = tqdm(range(start, steps), initial=start, total=steps, desc=desc,

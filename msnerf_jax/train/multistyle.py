@@ -1,5 +1,6 @@
 """Training a multi-style NeRF on a stylized dataset, top to bottom: a trained NeRF's frozen trunk,
-new style heads, a batch of pixels supervised in every style at once, MSE, Adam on the heads."""
+new style heads, a batch of pixels supervised in every style at once, MSE (plus, optionally, a
+style loss on rendered patches), Adam on the heads."""
 
 import dataclasses
 import functools
@@ -11,15 +12,18 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from msnerf_jax import adain as adain_lib
 from msnerf_jax import checkpoint as ckpt_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
+from msnerf_jax import rays as rays_lib
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, check_views
 from msnerf_jax.errors import UserError
+from msnerf_jax.models import vgg
 from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import nerf as nerf_lib
@@ -77,24 +81,62 @@ def init_state(config: MultistyleConfig, nerf_params) -> state_lib.TrainState:
 # ----------------------------------------------------------------------------- the step
 
 
-def loss_fn(trainable, frozen, batch, styles, config: MultistyleConfig, white_background: bool):
-  """MSE of the coarse and fine renders in every style against the stylized targets.
+def patch_style_loss(field: MultistyleField, params, patches, styles, encoder,
+                     config: MultistyleConfig, white_background: bool) -> jnp.ndarray:
+  """AdaIN statistics loss between whole rendered patches and the targets' same patches.
+
+  Each patch is rendered (fine network) in every style and encoded by the frozen VGG; the
+  loss is adain.style_loss (channel means and stds over relu1_1 ... relu4_1) against the
+  stylized views' pixels of that patch, averaged over patches and styles. The per-view
+  stylizations disagree on where each stroke lies, so a per-pixel MSE pulls the renders
+  towards their faded average; statistics over a patch ask for the strokes' contrast and
+  colours without asking where they lie.
+
+  Args:
+    patches: {"rays": ray_bundle [P, S*S], "rgb": [P, S, S, M, 3] uint8, "random"}.
+    styles: [M, style_dim]; encoder: `vgg.load_vgg_params()`.
+  Returns: [] the loss.
+  """
+  n, s = patches["rgb"].shape[:2]
+  m = styles.shape[0]
+  flat = jax.tree_util.tree_map(lambda x: x.reshape(n * s * s, *x.shape[2:]),
+                                {"rays": patches["rays"], "random": patches["random"]})
+  out = render_lib.render_rays_styles(field, params, flat["rays"], styles, config.nerf,
+                                      flat["random"], white_background)
+  rendered = out["fine"]["rgb"].reshape(m * n, s, s, 3)
+  target = jnp.moveaxis(patches["rgb"], 3, 0).reshape(m * n, s, s, 3).astype(jnp.float32) / 255.0
+  encoder = jax.lax.stop_gradient(encoder)  # frozen: XLA drops its weight gradients.
+  want = jax.lax.stop_gradient(adain_lib.style_stats(encoder, target))
+  return adain_lib.style_loss(adain_lib.style_stats(encoder, rendered), want)
+
+
+def loss_fn(trainable, frozen, batch, styles, encoder, config: MultistyleConfig,
+            white_background: bool):
+  """MSE of the coarse and fine renders in every style against the stylized targets, plus
+  config.style_weight x patch_style_loss when that weight is > 0.
 
   batch["rgb"]: [B, M, 3] uint8, pixel b of the training view in each of the M styles.
   The frozen trunks enter through stop_gradient, so no gradient is computed for them.
   """
   params = merge(trainable, jax.lax.stop_gradient(frozen))
-  out = render_lib.render_rays_styles(MultistyleField(config), params, batch["rays"], styles,
-                                      config.nerf, batch["random"], white_background)
+  field = MultistyleField(config)
+  out = render_lib.render_rays_styles(field, params, batch["rays"], styles, config.nerf,
+                                      batch["random"], white_background)
   target = jnp.swapaxes(batch["rgb"], 0, 1).astype(jnp.float32) / 255.0  # [M, B, 3]
   mse_coarse = jnp.mean((out["coarse"]["rgb"] - target) ** 2)
   mse_fine = jnp.mean((out["fine"]["rgb"] - target) ** 2)
-  return mse_coarse + mse_fine, {"loss": mse_coarse + mse_fine, "mse_coarse": mse_coarse,
-                                 "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  loss = mse_coarse + mse_fine
+  stats = {"mse_coarse": mse_coarse, "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  if config.style_weight > 0:
+    stats["style"] = patch_style_loss(field, params, batch["patches"], styles, encoder, config,
+                                      white_background)
+    loss = loss + config.style_weight * stats["style"]
+  return loss, {"loss": loss, **stats}
 
 
-def train_step(state: state_lib.TrainState, batch, styles, config: MultistyleConfig,
-               white_background: bool, axis_name: Optional[str] = None):
+def train_step(state: state_lib.TrainState, batch, styles, encoder=None, *,
+               config: MultistyleConfig, white_background: bool,
+               axis_name: Optional[str] = None):
   """One Adam step on the style heads; the trunks come out bit-identical.
 
   Gradients are taken with respect to the trainable subtrees only; the optimizer's freeze
@@ -102,8 +144,8 @@ def train_step(state: state_lib.TrainState, batch, styles, config: MultistyleCon
   old arrays themselves (not old + 0), so they never change by a bit.
   """
   trainable, frozen = split_frozen(state.params)
-  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, styles, config,
-                                                 white_background)
+  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, styles, encoder,
+                                                 config, white_background)
   if axis_name is not None:
     grads = jax.lax.pmean(grads, axis_name)
     stats = jax.lax.pmean(stats, axis_name)
@@ -112,22 +154,67 @@ def train_step(state: state_lib.TrainState, batch, styles, config: MultistyleCon
   return state.replace(params=merge(split_frozen(state.params)[0], frozen)), stats
 
 
-def compile_train_step(config: MultistyleConfig, styles: jnp.ndarray, white_background: bool,
-                       n_devices: int) -> Callable:
-  """jit/pmap step with the style vectors [M, 1024] bound (the same on every device)."""
+def compile_train_step(config: MultistyleConfig, styles: np.ndarray, white_background: bool,
+                       n_devices: int, encoder=None) -> Callable:
+  """jit/pmap step with the style vectors [M, 1024] (and, with a style loss, the VGG
+  encoder's params) placed once on every device."""
+  if config.style_weight > 0 and encoder is None:
+    raise ValueError("a style loss needs the encoder's params (vgg.load_vgg_params())")
+  constants = (jnp.asarray(styles, jnp.float32),) + ((encoder,) if config.style_weight > 0 else ())
   return loop_lib.compile_step(functools.partial(
-      train_step, styles=jnp.asarray(styles), config=config,
-      white_background=white_background), n_devices)
+      train_step, config=config, white_background=white_background), n_devices, constants)
 
 
 def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
   """A random batch of pixels of the training views, with their colour in every style.
 
-  images: [N, H, W, M, 3] uint8. Returns {"rays" [B], "rgb" [B, M, 3] uint8, "random"}.
+  images: [N, H, W, M, 3] uint8. Returns {"rays" [B], "rgb" [B, M, 3] uint8, "random"},
+  plus "patches" (sample_patches) when config.style_weight > 0.
   """
   sampling = dataclasses.replace(config.nerf, batch_rays=config.batch_rays)
-  return nerf_lib.sample_batch(key, images, c2w, K, sampling, False, scene.ndc,
-                               (scene.height, scene.width, scene.focal), scene.near, scene.far)
+  batch = nerf_lib.sample_batch(key, images, c2w, K, sampling, False, scene.ndc,
+                                (scene.height, scene.width, scene.focal), scene.near, scene.far)
+  if config.style_weight > 0:
+    batch["patches"] = sample_patches(jax.random.fold_in(key, 1), images, c2w, K, config, scene)
+  return batch
+
+
+def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
+  """config.style_patches random S x S patches (S = config.style_patch) of random training
+  views, whole, with their pixels in every style.
+
+  images: [N, H, W, M, 3] uint8. Returns {"rays": ray_bundle [P, S*S] (row-major),
+  "rgb": [P, S, S, M, 3] uint8, "random": draw_randomness [P, S*S, ...]}.
+  """
+  n_views, h, w = images.shape[:3]
+  count, s = config.style_patches, config.style_patch
+  k_img, k_row, k_col, k_rand = jax.random.split(key, 4)
+  views = jax.random.randint(k_img, (count, 1, 1), 0, n_views)
+  rows = jax.random.randint(k_row, (count, 1, 1), 0, h - s + 1) + jnp.arange(s)[:, None]
+  cols = jax.random.randint(k_col, (count, 1, 1), 0, w - s + 1) + jnp.arange(s)
+  views, rows, cols = jnp.broadcast_arrays(views, rows, cols)  # [P, S, S] each
+  origins, directions = rays_lib.pixel_rays(K, c2w[views.reshape(-1)], rows.reshape(-1),
+                                            cols.reshape(-1))
+  rays = rays_lib.ray_bundle(origins, directions, scene.near, scene.far, scene.ndc,
+                             scene.height, scene.width, scene.focal)
+  random = render_lib.draw_randomness(k_rand, count * s * s, config.nerf)
+  per_patch = lambda x: x.reshape(count, s * s, *x.shape[1:])
+  return {"rays": jax.tree_util.tree_map(per_patch, rays), "rgb": images[views, rows, cols],
+          "random": jax.tree_util.tree_map(per_patch, random)}
+
+
+def check_style_loss(config: MultistyleConfig, scene: Scene, n_devices: int) -> None:
+  """UserError unless the patch style loss settings fit the views and the devices."""
+  if config.style_weight < 0:
+    raise UserError(f"style weight {config.style_weight}: must be >= 0")
+  if config.style_weight == 0:
+    return
+  if not 16 <= config.style_patch <= min(scene.height, scene.width):
+    raise UserError(f"style patch {config.style_patch}: must be between 16 (VGG's relu4_1 "
+                    f"needs 2x2) and the views' {min(scene.height, scene.width)} pixels")
+  if config.style_patches < 1 or config.style_patches % n_devices:
+    raise UserError(f"{config.style_patches} style patches per step do not split over "
+                    f"{n_devices} devices")
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -136,10 +223,7 @@ def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
 def load_nerf_run(nerf_run_dir: str) -> Tuple[ckpt_lib.Run, Scene, config_lib.DataConfig]:
   """A trained NeRF run and its scene (load_run already checks the params against the
   run's architecture)."""
-  run = ckpt_lib.load_run(nerf_run_dir)
-  if run.kind != "nerf":
-    raise UserError(f"{nerf_run_dir}: a {run.kind!r} run, not a NeRF run "
-                    "(train one with `msnerf nerf train`)")
+  run = ckpt_lib.load_run(nerf_run_dir, "nerf")
   return (run, *ckpt_lib.scene_of(run))
 
 
@@ -165,6 +249,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   n_devices = n_devices or jax.local_device_count()
   if config.batch_rays % n_devices:
     raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
+  check_style_loss(config, scene, n_devices)
   ckpt_lib.prepare_run_dir(run_dir, KIND, {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
@@ -176,7 +261,9 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   c2w = jnp.asarray(scene.c2w[train_idx])
   K = jnp.asarray(scene.K)
   base_key = jax.random.PRNGKey(config.seed)
-  step_fn = compile_train_step(config, stylized.vectors, scene.white_background, n_devices)
+  encoder = vgg.load_vgg_params() if config.style_weight > 0 else None
+  step_fn = compile_train_step(config, stylized.vectors, scene.white_background, n_devices,
+                               encoder)
   return loop_lib.fit(
       init_state(config, nerf_run.params), step_fn,
       lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene),
