@@ -74,8 +74,10 @@ def markdown_table(rows: Sequence[Dict[str, Any]], columns: Sequence[str]) -> Li
 
 
 def method_labels(runs) -> List[str]:
-  """Table labels of multi-style runs: multistyle / multistyle-density, numbered when repeated."""
-  labels = ["multistyle-density" if r.config.density_aware else "multistyle" for r in runs]
+  """Table labels of multi-style runs: multistyle / multistyle-density, with "-styleloss" when
+  trained with the patch style loss, numbered when repeated."""
+  labels = [("multistyle-density" if r.config.density_aware else "multistyle")
+            + ("-styleloss" if r.config.style_weight > 0 else "") for r in runs]
   return [x if labels.count(x) == 1 else f"{x}#{labels[:i + 1].count(x)}"
           for i, x in enumerate(labels)]
 
