@@ -516,4 +516,4 @@ def test_single_style_bad_input(world, trained_standard, tmp_path, capsys):
   _one_line_error(capsys, ["evaluate", "--run", trained_standard, "--single-style", world["nerf"],
                            "--out", str(tmp_path / "e")], world["nerf"], "single-style")
   _one_line_error(capsys, ["evaluate", "--run", world["nerf"], "--out", str(tmp_path / "e")],
-                  "multi-style")
+                  "not a 'multistyle' run")
