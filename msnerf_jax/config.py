@@ -57,6 +57,8 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
 
   `paper`: the reference code's defaults (128 fine samples on Blender, 64 and sigma noise
   1.0 on LLFF). `cpu`: a smaller network and fewer samples tuned for a 2-core laptop.
+  Overriding net_depth without skip_layer puts the skip connection after the middle layer,
+  where both presets have it.
   """
   if name not in PRESETS:
     raise UserError(f"--preset {name}: unknown preset (choose from {', '.join(PRESETS)})")
@@ -85,7 +87,10 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         steps=6000,
         checkpoint_every=500,
         mlp_chunk=2048)
-  return dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+  overrides = {k: v for k, v in overrides.items() if v is not None}
+  if "net_depth" in overrides:
+    overrides.setdefault("skip_layer", overrides["net_depth"] // 2)
+  return dataclasses.replace(config, **overrides)
 
 
 def config_class(kind: str) -> Type:

@@ -92,9 +92,7 @@ def cmd_train(args):
                                   batch_rays=args.batch_rays, seed=args.seed,
                                   checkpoint_every=args.checkpoint_every,
                                   net_depth=args.net_depth, net_width=args.net_width,
-                                  n_coarse=args.n_coarse, n_fine=args.n_fine,
-                                  skip_layer=None if args.net_depth is None
-                                  else args.net_depth // 2)
+                                  n_coarse=args.n_coarse, n_fine=args.n_fine)
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; preset {args.preset}"
         + (f"; style {args.style} of {args.stylized}" if style else ""))
