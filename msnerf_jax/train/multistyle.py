@@ -16,7 +16,6 @@ from msnerf_jax import adain as adain_lib
 from msnerf_jax import checkpoint as ckpt_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
-from msnerf_jax import rays as rays_lib
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig
 from msnerf_jax.data import images as images_lib
@@ -193,14 +192,12 @@ def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
   rows = jax.random.randint(k_row, (count, 1, 1), 0, h - s + 1) + jnp.arange(s)[:, None]
   cols = jax.random.randint(k_col, (count, 1, 1), 0, w - s + 1) + jnp.arange(s)
   views, rows, cols = jnp.broadcast_arrays(views, rows, cols)  # [P, S, S] each
-  origins, directions = rays_lib.pixel_rays(K, c2w[views.reshape(-1)], rows.reshape(-1),
-                                            cols.reshape(-1))
-  rays = rays_lib.ray_bundle(origins, directions, scene.near, scene.far, scene.ndc,
-                             scene.height, scene.width, scene.focal)
-  random = render_lib.draw_randomness(k_rand, count * s * s, config.nerf)
-  per_patch = lambda x: x.reshape(count, s * s, *x.shape[1:])
-  return {"rays": jax.tree_util.tree_map(per_patch, rays), "rgb": images[views, rows, cols],
-          "random": jax.tree_util.tree_map(per_patch, random)}
+  batch = nerf_lib.pixel_batch(k_rand, images, c2w, K, views.reshape(-1), rows.reshape(-1),
+                               cols.reshape(-1), config.nerf, scene.ndc,
+                               (scene.height, scene.width, scene.focal), scene.near, scene.far)
+  patches = jax.tree_util.tree_map(lambda x: x.reshape(count, s * s, *x.shape[1:]), batch)
+  patches["rgb"] = batch["rgb"].reshape(count, s, s, *batch["rgb"].shape[1:])
+  return patches
 
 
 def check_style_loss(config: MultistyleConfig, scene: Scene, n_devices: int) -> None:

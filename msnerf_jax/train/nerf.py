@@ -58,10 +58,20 @@ def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bo
   else:
     rows = jax.random.randint(k_row, (b,), 0, h)
     cols = jax.random.randint(k_col, (b,), 0, w)
+  return pixel_batch(k_rand, images, c2w, K, idx, rows, cols, config, ndc, shape, near, far)
+
+
+def pixel_batch(key, images, c2w, K, idx, rows, cols, config: NerfConfig, ndc: bool, shape,
+                near: float, far: float):
+  """Chosen training pixels as a batch: idx, rows, cols [B] (view, row, column of each).
+
+  Returns {"rays": ray_bundle [B], "rgb": images[idx, rows, cols], "random":
+  draw_randomness [B] from `key`}.
+  """
   origins, directions = rays_lib.pixel_rays(K, c2w[idx], rows, cols)
   rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, shape[0], shape[1], shape[2])
   return {"rays": rays, "rgb": images[idx, rows, cols],
-          "random": render_lib.draw_randomness(k_rand, b, config)}
+          "random": render_lib.draw_randomness(key, idx.shape[0], config)}
 
 
 # ----------------------------------------------------------------------------- the step
