@@ -1,7 +1,7 @@
 """AdaIN: channel statistics, adaptive instance normalisation, style vectors and style blending."""
 
 import functools
-from typing import Any, Dict, Sequence, Tuple
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import chex
 import jax
@@ -31,7 +31,9 @@ def channel_stats(feats: jnp.ndarray, eps: float = EPS) -> Tuple[jnp.ndarray, jn
 
 
 def adain_from_stats(content_feats: jnp.ndarray, style_mean: jnp.ndarray, style_std: jnp.ndarray,
-                     alpha: float = 1.0) -> jnp.ndarray:
+                     alpha: float = 1.0,
+                     content_stats: Optional[Tuple[jnp.ndarray, jnp.ndarray]] = None
+                     ) -> jnp.ndarray:
   """AdaIN with given target statistics: s_std * (c - c_mean) / c_std + s_mean.
 
   Strength `alpha` blends the statistics, s = alpha * s + (1 - alpha) * c, which equals the
@@ -41,13 +43,20 @@ def adain_from_stats(content_feats: jnp.ndarray, style_mean: jnp.ndarray, style_
     content_feats: [B, H, W, C].
     style_mean, style_std: [B, C] (or [1, C], broadcast over the batch).
     alpha: scalar in [0, 1] (may be traced).
+    content_stats: (mean, std) [1, C] that replace each image's own statistics c_mean and
+      c_std, e.g. those of a whole scene (`stylize.scene_content_stats`): every image is
+      then normalised by the same affine map.
   Returns:
     [B, H, W, C].
   """
   chex.assert_rank([content_feats, style_mean, style_std], [4, 2, 2])
   chex.assert_equal_shape([style_mean, style_std])
   chex.assert_axis_dimension(style_mean, 1, content_feats.shape[-1])
-  c_mean, c_std = channel_stats(content_feats)
+  if content_stats is None:
+    c_mean, c_std = channel_stats(content_feats)
+  else:
+    c_mean, c_std = content_stats
+    chex.assert_shape([c_mean, c_std], (1, content_feats.shape[-1]))
   mean = alpha * style_mean + (1.0 - alpha) * c_mean
   std = alpha * style_std + (1.0 - alpha) * c_std
   normalized = (content_feats - c_mean[:, None, None, :]) / c_std[:, None, None, :]

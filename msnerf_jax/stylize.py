@@ -3,12 +3,13 @@
 import dataclasses
 import numbers
 import os
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Sequence, Tuple
 
 import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import checkpoint as checkpoint_lib
@@ -17,6 +18,9 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
+
+# (mean, std) [1, C] channel statistics.
+Stats = Tuple[Any, Any]
 
 
 def cover_crop(image: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -109,19 +113,21 @@ def style_stats_relu4_1(encoder_params: Any, styles: jnp.ndarray) -> tuple:
 
 
 def decode_with_stats(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
-                      mean: jnp.ndarray, std: jnp.ndarray, alpha: float, upsample: str) -> jnp.ndarray:
+                      mean: jnp.ndarray, std: jnp.ndarray, alpha: float, upsample: str,
+                      content_stats: Optional[Stats] = None) -> jnp.ndarray:
   """Content [1, H, W, 3] with target relu4_1 statistics (mean, std [1, 512]) -> [1, H, W, 3].
 
   H and W should be multiples of 8 (the decoder output is 8x the relu4_1 size).
+  `content_stats` (mean, std [1, 512]) replace the content's own relu4_1 statistics.
   """
   feats = adain_lib.encode(encoder_params, content)["relu4_1"]
-  target = adain_lib.adain_from_stats(feats, mean, std, alpha)
+  target = adain_lib.adain_from_stats(feats, mean, std, alpha, content_stats)
   return jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, target), 0.0, 1.0)
 
 
 def stylize_arrays(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
                    styles: jnp.ndarray, weights: jnp.ndarray, alpha: float,
-                   upsample: str) -> jnp.ndarray:
+                   upsample: str, content_stats: Optional[Stats] = None) -> jnp.ndarray:
   """Stylizes one content image with a weighted blend of K styles (all jit-able).
 
   Args:
@@ -129,6 +135,8 @@ def stylize_arrays(decoder_params: Any, encoder_params: Any, content: jnp.ndarra
     styles: [K, H', W', 3] in [0, 1].
     weights: [K] non-negative (normalised here).
     alpha: style strength in [0, 1].
+    content_stats: optional (mean, std [1, 512]) relu4_1 statistics that normalise the
+      content instead of its own (see `scene_content_stats`).
   Returns:
     [1, H, W, 3] in [0, 1].
   """
@@ -136,10 +144,51 @@ def stylize_arrays(decoder_params: Any, encoder_params: Any, content: jnp.ndarra
   chex.assert_rank(styles, 4)
   means, stds = style_stats_relu4_1(encoder_params, styles)
   mean, std = adain_lib.blend_stats(means, stds, weights)
-  return decode_with_stats(decoder_params, encoder_params, content, mean, std, alpha, upsample)
+  return decode_with_stats(decoder_params, encoder_params, content, mean, std, alpha, upsample,
+                           content_stats)
 
 
 _stylize_jit = jax.jit(stylize_arrays, static_argnames=("upsample",))
+
+
+@jax.jit
+def _relu4_1_sums(encoder_params: Any, image: jnp.ndarray):
+  """Sums over positions of relu4_1 features and of their squares ([C], [C]), and the count."""
+  f = adain_lib.encode(encoder_params, image)["relu4_1"]
+  return jnp.sum(f, axis=(0, 1, 2)), jnp.sum(jnp.square(f), axis=(0, 1, 2)), f[..., 0].size
+
+
+def scene_content_stats(encoder_params: Any, views: Sequence[np.ndarray], scale: int = 1,
+                        progress: bool = False) -> Stats:
+  """relu4_1 mean and std over every position of every view, as `stylize_image` sees them.
+
+  Per-view AdaIN normalises each view by its own statistics, which change with what the
+  view shows, so one surface gets a different colour map in each view. Normalising every
+  view by these scene statistics instead gives all views the same map.
+
+  Args:
+    views: [H, W, 3] images in [0, 1] (e.g. a scene's training views).
+    scale: the stylize scale (views are enlarged and padded as `stylize_image` does).
+  Returns:
+    (mean [1, 512], std [1, 512]) float32; std is unbiased plus adain.EPS, like
+    `adain.channel_stats`.
+  """
+  if not len(views):
+    raise UserError("no views to take scene statistics from")
+  check_scale(scale)
+  sums = squares = 0.0
+  count = 0
+  for view in tqdm(views, desc="scene statistics", disable=not progress, leave=False):
+    h, w = view.shape[:2]
+    big = pad_to_multiple(images_lib.resize(np.asarray(view, np.float32), h * scale, w * scale))
+    s, q, n = _relu4_1_sums(encoder_params, jnp.asarray(big[None]))
+    sums = sums + np.asarray(s, np.float64)
+    squares = squares + np.asarray(q, np.float64)
+    count += int(n)
+  mean = sums / count
+  var = np.maximum(squares - count * mean * mean, 0.0) / max(count - 1, 1)
+  return (mean[None].astype(np.float32),
+          (np.sqrt(var) + adain_lib.EPS)[None].astype(np.float32))
 
 
 def pad_to_multiple(image: np.ndarray, multiple: int = 8) -> np.ndarray:
@@ -154,7 +203,7 @@ def pad_to_multiple(image: np.ndarray, multiple: int = 8) -> np.ndarray:
 def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
                   styles: Sequence[np.ndarray], weights: Optional[Sequence[float]] = None,
                   alpha: float = 1.0, preserve_color: bool = False,
-                  scale: int = 1) -> np.ndarray:
+                  scale: int = 1, content_stats: Optional[Stats] = None) -> np.ndarray:
   """Stylizes content [H, W, 3] with styles (each [h, w, 3]), blended by `weights`.
 
   Each style is resized to cover the content and centre-cropped to its size (reference
@@ -162,7 +211,9 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   to the content's. With `scale` > 1 the content is enlarged (bicubic) to scale x its size,
   stylized there (styles cover the enlarged size), and the result is box-averaged back: the
   strokes are `scale` x finer relative to the scene, as when the reference code stylizes 400x400
-  Blender views that are then trained on at 100x100. Returns [H, W, 3] float32 in [0, 1].
+  Blender views that are then trained on at 100x100. `content_stats` (from
+  `scene_content_stats` at the same scale) normalise the content instead of its own relu4_1
+  statistics. Returns [H, W, 3] float32 in [0, 1].
   """
   if not styles:
     raise UserError("no style image given")
@@ -174,7 +225,7 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   h, w = content.shape[:2]
   if scale > 1:
     big = stylize_image(decoder, encoder_params, images_lib.resize(content, h * scale, w * scale),
-                        styles, weights, alpha, preserve_color)
+                        styles, weights, alpha, preserve_color, content_stats=content_stats)
     return images_lib.resize(big, h, w)
   padded = pad_to_multiple(content)
   ph, pw = padded.shape[:2]
@@ -183,7 +234,7 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
     crops = np.stack([np.asarray(match_color(jnp.asarray(s), jnp.asarray(padded))) for s in crops])
   out = _stylize_jit(decoder.params, encoder_params, jnp.asarray(padded[None]), jnp.asarray(crops),
                      jnp.asarray(weights, jnp.float32), jnp.float32(alpha),
-                     upsample=decoder.config.upsample)
+                     upsample=decoder.config.upsample, content_stats=content_stats)
   return np.asarray(out[0, :h, :w])
 
 

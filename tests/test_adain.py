@@ -61,6 +61,38 @@ def test_blend_equals_feature_interpolation():
                              0.25 * v[0] + 0.75 * v[1], atol=1e-5)
 
 
+def test_content_stats_give_every_image_the_same_map():
+  c = _feats(jax.random.PRNGKey(5), scale=2.0, shift=1.0)
+  s_mean, s_std = adain.channel_stats(_feats(jax.random.PRNGKey(6), (1, 5, 5, 8)))
+  own = adain.channel_stats(c[:1])
+  # An image's own statistics given explicitly are plain AdaIN.
+  np.testing.assert_allclose(adain.adain_from_stats(c[:1], s_mean, s_std, 1.0, own),
+                             adain.adain_from_stats(c[:1], s_mean, s_std), atol=1e-5)
+  # Shared statistics: one affine map per channel for the whole batch, so one feature value
+  # lands on one output value in every image (not so with per-image statistics).
+  shared = (jnp.full((1, 8), 0.5), jnp.full((1, 8), 2.0))
+  out = adain.adain_from_stats(c, s_mean, s_std, 1.0, shared)
+  np.testing.assert_allclose(out, (c - 0.5) / 2.0 * s_std[:, None, None] + s_mean[:, None, None],
+                             atol=1e-5)
+  with pytest.raises(AssertionError):
+    adain.adain_from_stats(c, s_mean, s_std, 1.0, (shared[0][:, :3], shared[1][:, :3]))
+
+
+def test_scene_content_stats_pool_every_position_of_every_view(enc):
+  views = [np.asarray(jax.random.uniform(jax.random.PRNGKey(i), (12, 20, 3))) for i in (7, 8)]
+  mean, std = stylize.scene_content_stats(enc, views, scale=2)
+  assert mean.shape == std.shape == (1, 512) and mean.dtype == np.float32
+  # The same as the statistics of both views' relu4_1 maps (of the enlarged, padded views)
+  # put side by side.
+  feats = [np.asarray(adain.encode(enc, jnp.asarray(stylize.pad_to_multiple(
+      stylize.images_lib.resize(v, 24, 40))[None]))["relu4_1"]) for v in views]
+  flat = np.concatenate([f.reshape(-1, 512) for f in feats]).astype(np.float64)
+  np.testing.assert_allclose(mean[0], flat.mean(0), rtol=1e-4, atol=1e-5)
+  np.testing.assert_allclose(std[0], flat.std(0, ddof=1) + adain.EPS, rtol=1e-3, atol=1e-5)
+  with pytest.raises(stylize.UserError, match="no views"):
+    stylize.scene_content_stats(enc, [])
+
+
 @pytest.fixture(scope="module")
 def enc():
   return vgg.load_vgg_params()

@@ -192,6 +192,41 @@ def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, 
   assert json.load(open(manifest_path))["stylize_scale"] == 1
 
 
+def test_scene_stats_normalise_every_view_by_the_training_views(world, tmp_path, capsys):
+  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data import images  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  out = str(tmp_path / "scene")
+  argv = ["stylize-scene", "--data", world["scene_dir"], "--decoder", world["decoder"],
+          "--styles", world["styles"][0], "--stylize-scale", "2", "--out", out]
+  assert cli.main(argv + ["--scene-stats"]) == 0
+  assert json.load(open(os.path.join(out, "manifest.json")))["content_stats"] == "scene"
+  scene, encoder = world["scene"], vgg.load_vgg_params()
+  mean, std = stylize.scene_content_stats(encoder, scene.images[scene.split("train")], 2)
+  saved = np.load(os.path.join(out, "content_stats.npy"))
+  np.testing.assert_allclose(saved, np.concatenate([mean, std]), rtol=1e-6)
+  # A val view (not among the views the statistics come from) is stylized with them.
+  decoder, picture = stylize.load_decoder(world["decoder"]), images.read_image(world["styles"][0])
+  view, a = scene.images[5], scene.alphas[5][..., None] / 255.0
+  want = stylize.stylize_image(decoder, encoder, view, [picture], scale=2,
+                               content_stats=(mean, std)) * a + (1 - a)
+  got = load_stylized(out).images[0, 5] / 255.0
+  np.testing.assert_allclose(got, want, atol=1.5 / 255)
+  own = stylize.stylize_image(decoder, encoder, view, [picture], scale=2) * a + (1 - a)
+  assert np.abs(got - own).mean() > 2 / 255
+  # Continuing with per-view statistics is refused; so are unusable saved statistics.
+  _one_line_error(capsys, argv, "content_stats")
+  manifest_path = os.path.join(out, "manifest.json")
+  manifest = json.load(open(manifest_path))
+  manifest["done"] = []
+  json.dump(manifest, open(manifest_path, "w"))
+  missing = os.path.join(out, "red", "0002.png")
+  os.remove(missing)
+  np.save(os.path.join(out, "content_stats.npy"), np.concatenate([mean, -std]))
+  _one_line_error(capsys, argv + ["--scene-stats"], "content_stats.npy", "standard deviation")
+  assert not os.path.exists(missing)
+
+
 def test_trunk_is_frozen_and_heads_train(world, trained):
   run, nerf_run = load_run(trained), load_run(world["nerf"])
   assert run.kind == "multistyle" and run.step == 3

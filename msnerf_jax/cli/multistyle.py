@@ -36,6 +36,10 @@ def register(commands, formatter):
                  help="stylize each view enlarged N times, then shrink the result: strokes N x "
                       "finer relative to the scene (e.g. 4 at --downscale 8 stylizes lego at "
                       "the reference code's 400x400 and trains at 100x100)")
+  p.add_argument("--scene-stats", action="store_true",
+                 help="normalise every view by the VGG statistics of all training views instead "
+                      "of its own: one colour map for the whole scene, so the views agree more "
+                      "(METHOD.md's per-view AdaIN without it)")
   p.add_argument("--out", required=True, help="dataset folder")
   p.set_defaults(func=cmd_stylize_scene)
 
@@ -157,11 +161,13 @@ def cmd_stylize_scene(args):
   t0 = time.time()
   summary = stylized_lib.stylize_scene(
       scene, data,
-      lambda view, style, alpha, scale: stylize_lib.stylize_image(
-          decoder, encoder, view, [style], alpha=alpha, scale=scale),
+      lambda view, style, alpha, scale, stats: stylize_lib.stylize_image(
+          decoder, encoder, view, [style], alpha=alpha, scale=scale, content_stats=stats),
       lambda image: stylized_lib.style_vector_of(encoder, image),
       args.styles, alphas, args.include_original, args.out,
-      decoder=args.decoder, stylize_scale=args.stylize_scale)
+      decoder=args.decoder, stylize_scale=args.stylize_scale,
+      content_stats_fn=(lambda views, scale: stylize_lib.scene_content_stats(
+          encoder, views, scale, progress=True)) if args.scene_stats else None)
   print_summary("stylized dataset done", [
       ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
       ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),

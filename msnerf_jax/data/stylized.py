@@ -2,8 +2,11 @@
 
 Layout of a dataset folder:
   manifest.json           scene, size, splits, the styles (name, source, alpha), which are done,
-                          the decoder and the stylize scale
+                          the decoder, the stylize scale and the content statistics ("view"
+                          or "scene")
   poses.npy               [N, 3, 4] camera-to-world of the views (checked against a NeRF run)
+  content_stats.npy       [2, 512] relu4_1 mean and std of the training views (only with
+                          "content_stats": "scene")
   <style>/style_vector.npy  the style's 1024-d vector
   <style>/0000.png ...    view i stylized (PNG, the scene's resolution)
 
@@ -29,6 +32,8 @@ from msnerf_jax.stylize import check_scale
 MANIFEST = "manifest.json"
 POSES = "poses.npy"
 VECTOR = "style_vector.npy"
+CONTENT_STATS = "content_stats.npy"
+CONTENT_STATS_KINDS = ("view", "scene")
 ORIGINAL = "original"
 
 
@@ -49,13 +54,14 @@ def _write_json(path: str, value: Any) -> None:
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                   style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
                   include_original: bool, out_dir: str, progress: bool = True,
-                  decoder: Optional[str] = None, stylize_scale: int = 1) -> Dict[str, Any]:
+                  decoder: Optional[str] = None, stylize_scale: int = 1,
+                  content_stats_fn=None) -> Dict[str, Any]:
   """Writes (or completes) the stylized dataset of a scene.
 
   Args:
     scene, data_config: the loaded scene and the DataConfig that loads it again.
-    stylize_fn(content [H, W, 3], style [h, w, 3], alpha, scale) -> [H, W, 3]: the 2D
-      stylizer (stylize.stylize_image's `scale`: stylize at scale x the view size).
+    stylize_fn(content [H, W, 3], style [h, w, 3], alpha, scale, content_stats) -> [H, W, 3]:
+      the 2D stylizer (stylize.stylize_image's `scale` and `content_stats`).
     style_vector_fn(image [h, w, 3]) -> [1024]: the style vector of an image.
     style_paths, alphas: style images and their strengths (one alpha each).
     include_original: add the unstylized views as one more style named "original", whose
@@ -64,6 +70,10 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     decoder: the AdaIN run folder behind stylize_fn (recorded for evaluations).
     stylize_scale: passed to stylize_fn and recorded, so evaluations stylize their per-frame
       baseline the same way.
+    content_stats_fn(views, scale) -> (mean, std) [1, C]: with it, every view is normalised
+      by the content statistics of the training views (stylize.scene_content_stats), saved
+      as content_stats.npy so that a resumed run uses the same; without it, each view by its
+      own (per-view AdaIN, as in METHOD.md).
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
@@ -93,7 +103,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                                                for k, v in scene.splits.items()},
       "views": [os.path.basename(p) for p in scene.image_paths], "styles": styles, "done": [],
       "decoder": os.path.abspath(decoder) if decoder else None,
-      "stylize_scale": int(stylize_scale)}
+      "stylize_scale": int(stylize_scale),
+      "content_stats": "view" if content_stats_fn is None else "scene"}
   path = os.path.join(out_dir, MANIFEST)
   if os.path.exists(out_dir) and not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: is a file, expected a folder")
@@ -111,6 +122,15 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     _write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
+
+  content_stats = None
+  if content_stats_fn is not None and any(s["source"] for s in styles):
+    stats_path = os.path.join(out_dir, CONTENT_STATS)
+    if os.path.exists(stats_path):
+      content_stats = read_content_stats(out_dir)
+    else:
+      content_stats = content_stats_fn(scene.images[scene.split("train")], stylize_scale)
+      images_lib.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
 
   written = skipped = 0
   for style in styles:
@@ -132,7 +152,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
         continue
       view = scene.images[i]
       if name != ORIGINAL:
-        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"], stylize_scale))
+        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"], stylize_scale,
+                                     content_stats))
         if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
           a = scene.alphas[i][..., None].astype(np.float32) / 255.0
           view = view * a + (1.0 - a)
@@ -159,7 +180,20 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
   # Datasets made before the option existed were stylized at scale 1.
   check_scale(manifest.setdefault("stylize_scale", 1), f"{path}: stylize_scale")
+  kind = manifest.setdefault("content_stats", "view")
+  if kind not in CONTENT_STATS_KINDS:
+    raise UserError(f"{path}: content_stats is {kind!r}, expected one of "
+                    f"{', '.join(CONTENT_STATS_KINDS)}")
   return manifest
+
+
+def read_content_stats(out_dir: str):
+  """(mean [1, C], std [1, C]) saved by a "scene" stylized dataset; UserError if unusable."""
+  path = os.path.join(out_dir, CONTENT_STATS)
+  stats = images_lib.read_npy(path, (2, None))
+  if np.any(stats[1] <= 0):
+    raise UserError(f"{path}: a standard deviation is not positive")
+  return stats[:1], stats[1:]
 
 
 def check_views(path: str, n: int, height: int, width: int, c2w: np.ndarray, scene: Scene,
