@@ -6,8 +6,9 @@ S="$D/styles"
 case "${1:-}" in
   # STYLIZE_SCALE: views are stylized at the reference code's resolution (lego 400x400, fern
   # 504x378), then trained on at ours (stylize-scene --stylize-scale).
-  lego) DATA="$D/nerf_synthetic/lego"; SPLIT=val; STYLIZE_SCALE=4 ;;  # 100x100 (--downscale 8), 9 val views
-  fern) DATA="$D/nerf_llff_data/fern"; SPLIT=test; STYLIZE_SCALE=1 ;; # 504x378 (factor 8), every 8th view held out
+  # FRAMES: frames of the evaluated and rendered camera paths (fern's are 19x lego's pixels).
+  lego) DATA="$D/nerf_synthetic/lego"; SPLIT=val; STYLIZE_SCALE=4; FRAMES=${FRAMES:-40} ;;  # 100x100 (--downscale 8), 9 val views
+  fern) DATA="$D/nerf_llff_data/fern"; SPLIT=test; STYLIZE_SCALE=1; FRAMES=${FRAMES:-16} ;; # 504x378 (factor 8), every 8th view held out
   *) echo "first argument: lego or fern" >&2; exit 2 ;;
 esac
 SCENE="$1"

@@ -7,5 +7,5 @@ NERF="$2"; OUT="$3"; STEPS="${4:-3000}"
 msnerf multistyle train --nerf "$NERF" --stylized "$OUT/styles" --out "$OUT/ms_density" \
   --density-aware --steps "$STEPS"
 msnerf multistyle eval --run "$OUT/ms_density" --split $SPLIT
-msnerf evaluate --run "$OUT/ms" "$OUT/ms_density" --frames 40 --out "$OUT/evaluate_density"
+msnerf evaluate --run "$OUT/ms" "$OUT/ms_density" --frames "$FRAMES" --out "$OUT/evaluate_density"
 footer "density-aware, $SCENE"

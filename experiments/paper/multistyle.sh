@@ -12,5 +12,5 @@ msnerf multistyle train --nerf "$NERF" --stylized "$OUT/styles" --out "$OUT/ms" 
 msnerf multistyle eval --run "$OUT/ms" --split $SPLIT
 msnerf render --run "$OUT/ms" --out "$OUT/video" --style mondrian --morph asheville mondrian \
   --grid-steps 5 --grid-views 3
-msnerf evaluate --run "$OUT/ms" --frames 40 --out "$OUT/evaluate"
+msnerf evaluate --run "$OUT/ms" --frames "$FRAMES" --out "$OUT/evaluate"
 footer "multi-style results, $SCENE"

@@ -7,5 +7,5 @@
 OUT="$2"; STYLE="${3:-brushstrokes}"
 python "$(dirname "$0")/../style_controls.py" --run "$OUT/ms" --out "$OUT/strength_$STYLE" strength "$STYLE"
 msnerf render --run "$OUT/ms" --out "$OUT/strength_$STYLE/video" --style "$STYLE" --strength 0.5 \
-  --morph original "$STYLE" --frames 40
+  --morph original "$STYLE" --frames "$FRAMES"
 footer "strength original -> $STYLE, $SCENE"

@@ -8,5 +8,5 @@ NERF="$2"; OUT="$3"; WEIGHT="${4:-0.01}"; STEPS="${5:-1000}"
 msnerf multistyle train --nerf "$NERF" --stylized "$OUT/styles" --out "$OUT/ms_style$WEIGHT" \
   --style-weight "$WEIGHT" --style-patch 32 --steps "$STEPS"
 msnerf multistyle eval --run "$OUT/ms_style$WEIGHT" --split $SPLIT
-msnerf evaluate --run "$OUT/ms" "$OUT/ms_style$WEIGHT" --frames 40 --out "$OUT/evaluate_style$WEIGHT"
+msnerf evaluate --run "$OUT/ms" "$OUT/ms_style$WEIGHT" --frames "$FRAMES" --out "$OUT/evaluate_style$WEIGHT"
 footer "patch style loss (weight $WEIGHT), $SCENE"

@@ -8,7 +8,7 @@ OUT="$2"
 python "$(dirname "$0")/../style_controls.py" --run "$OUT/ms" --out "$OUT/unseen" unseen "${UNSEEN[@]}"
 for image in "${UNSEEN[@]}"; do
   name=$(basename "${image%.*}")
-  msnerf render --run "$OUT/ms" --out "$OUT/unseen/$name" --style "$image" --frames 40 \
+  msnerf render --run "$OUT/ms" --out "$OUT/unseen/$name" --style "$image" --frames "$FRAMES" \
     --morph "${NAMES[0]}" "$image"
 done
 footer "unseen styles, $SCENE"
