@@ -31,8 +31,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # pylint: disable=g-import-not-at-top
 from msnerf_jax import consistency
-from msnerf_jax.checkpoint import load_run, scene_of
-from msnerf_jax.data.stylized import check_views, load_stylized
+from msnerf_jax.checkpoint import load_run
+from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
 from msnerf_jax.train import nerf as nerf_lib
 
@@ -52,11 +52,9 @@ def main():
   parser.add_argument("--out", default=None, help="output folder (default: STYLIZED/agreement)")
   args = parser.parse_args()
   t0 = time.time()
-  nerf_run = load_run(args.nerf, "nerf")
-  scene, _ = scene_of(nerf_run)
+  nerf_run, scene, _ = multistyle.load_nerf_run(args.nerf)
   data = load_stylized(args.stylized, progress=False)
-  check_views(args.stylized, data.images.shape[1], data.images.shape[2], data.images.shape[3],
-              data.c2w, scene, "the NeRF run's scene")
+  multistyle.check_compatible(data, scene, args.nerf)
   split = args.split or ("val" if len(scene.split("val")) else "test")
   held, train = scene.split(split), scene.split("train")
   ms_run = load_run(args.multistyle, "multistyle") if args.multistyle else None
@@ -69,12 +67,12 @@ def main():
       geometry[i] = nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, scene.c2w[i])
     return geometry[i]
 
+  # Every style's view i on the channels of one image [H, W, 3M]: one warp per neighbour.
+  stacked = lambda i: np.concatenate(list(data.images[:, i]), -1).astype(np.float32) / 255.0
   sums = {name: {"nearest": [], "average": [], "model": [], "coverage": []} for name in data.names}
   for t in tqdm(held, desc="held-out views"):
     near = train[np.argsort(np.linalg.norm(centres[train] - centres[t], axis=1))[:args.neighbours]]
     gt = geo(t)
-    # Every style's view s on the channels of one image: one warp per neighbour.
-    stacked = lambda i: np.concatenate(list(data.images[:, i]), -1).astype(np.float32) / 255.0
     warps = [consistency.warp(stacked(s), gt["depth"], geo(s)["depth"], gt["accumulation"],
                               geo(s)["accumulation"], scene.c2w[t], scene.c2w[s], scene.K,
                               scene.ndc) for s in near]
@@ -106,9 +104,9 @@ def main():
   lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
   lines += ["| " + " | ".join(r["style"] if c == "style" else f"{r[c]:.2f}" for c in columns)
             + " |" for r in rows]
-  footer = (f"{len(sums[data.names[0]]['average'])} {split} views, {args.neighbours} neighbours each, PSNR (dB) on the "
-            f"covered pixels; {time.time() - t0:.0f} s on {os.cpu_count()} cores, "
-            f"{platform.machine()}")
+  footer = (f"{len(sums[data.names[0]]['average'])} {split} views, {args.neighbours} "
+            f"neighbours each, PSNR (dB) on the covered pixels; {time.time() - t0:.0f} s on "
+            f"{os.cpu_count()} cores, {platform.machine()}")
   out = args.out or os.path.join(args.stylized, "agreement")
   os.makedirs(out, exist_ok=True)
   with open(os.path.join(out, "results.md"), "w") as f:
