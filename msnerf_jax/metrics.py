@@ -7,6 +7,7 @@ import chex
 import dm_pix
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax.models import vgg
@@ -27,6 +28,22 @@ def ssim(image, target):
   """SSIM of [..., H, W, C] images in [0, 1] (11x11 Gaussian window, sigma 1.5)."""
   image = jnp.clip(jnp.asarray(image, jnp.float32), 0.0, 1.0)
   return jnp.mean(dm_pix.ssim(image, jnp.asarray(target, jnp.float32), max_val=1.0))
+
+
+def mask_opacity(accumulation, alpha) -> Dict[str, float]:
+  """Mean rendered opacity on a view's empty space and on its object, by ground-truth alpha.
+
+  Args:
+    accumulation: [H, W] rendered opacity in [0, 1].
+    alpha: [H, W] uint8 ground-truth alpha (255 = opaque).
+  Returns:
+    {"background": mean over pixels with alpha 0, "object": mean over pixels with alpha
+    255}; partly covered (edge) pixels count in neither; NaN where a set is empty.
+  """
+  accumulation, alpha = np.asarray(accumulation, np.float64), np.asarray(alpha)
+  chex.assert_equal_shape([accumulation, alpha])
+  mean = lambda mask: float(accumulation[mask].mean()) if mask.any() else float("nan")
+  return {"background": mean(alpha == 0), "object": mean(alpha == 255)}
 
 
 # ----------------------------------------------------------------------------- LPIPS

@@ -42,16 +42,33 @@ def draw_randomness(key: jax.Array, n_rays: int, config, train: bool = True
   return out
 
 
-def composite(rgb, raw_sigma, z_vals, rays, noise, white_background):
-  """Activates raw density (plus optional noise) and volume-renders. Shapes as volume_render."""
+def composite(rgb, raw_sigma, z_vals, rays, noise, white_background, background=None):
+  """Activates raw density (plus optional noise) and volume-renders.
+
+  Args:
+    rgb: [*L, R, S, 3] colours, with any leading conditioning axes L (none, or [M] styles).
+    raw_sigma: [R, S] (shared by every conditioning) or [*L, R, S] raw densities.
+    z_vals: [R, S] or [*L, R, S] sample depths.
+    noise: None or [R, S] sigma noise (added before the activation).
+    background: None or [R, 3] colours composited over (replaces white_background).
+  Returns:
+    volume_render's outputs with leading L, plus the sample depths "z_vals" [R, S] or
+    [*L, R, S] they were computed at (for losses on the weights).
+  """
+  shape = rgb.shape[:-1]  # [*L, R, S]
   if noise is not None:
     raw_sigma = raw_sigma + noise
-  return volume_render(rgb, jax.nn.relu(raw_sigma), z_vals, rays["directions"],
-                       white_background)
+  out = volume_render(rgb, jax.nn.relu(jnp.broadcast_to(raw_sigma, shape)),
+                      jnp.broadcast_to(z_vals, shape),
+                      jnp.broadcast_to(rays["directions"], (*shape[:-1], 3)),
+                      white_background, background)
+  return {**out, "z_vals": z_vals}
 
 
 def points_along(rays, z_vals):
-  """Sample positions [R, S, 3] and view directions [R, 1, 3] (shared by a ray's samples)."""
+  """Sample positions [*L, R, S, 3] of depths z_vals [*L, R, S] (L: optional leading axes,
+  one set of samples per conditioning) and view directions [R, 1, 3] (shared by a ray's
+  samples)."""
   points = rays["origins"][..., None, :] + rays["directions"][..., None, :] * z_vals[..., None]
   return points, rays["viewdirs"][..., None, :]
 
@@ -75,124 +92,122 @@ def apply_in_chunks(field_fn: FieldFn, params, points, viewdirs, chunk: int):
   return rgb.reshape(n_rays, *rgb.shape[2:]), sigma.reshape(n_rays, *sigma.shape[2:])
 
 
-def render_rays(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
+def field_in_chunks(field, params, points, viewdirs, codes, chunk: int):
+  """The field over points [R, S, 3] (shared) or [M, R, S, 3] (one set per conditioning), in
+  chunks of whole rays (apply_in_chunks).
+
+  codes None: an unconditioned field, `field(params, points, viewdirs)`. Otherwise the
+  per-batch conditioning (`field.codes(params, conditioning)`, e.g. M style codes), passed
+  as `field(params, points, viewdirs, codes)` -> rgb [M, R, S, 3], raw sigma [R, S] or
+  [M, R, S]. Returns (rgb, raw sigma) with those shapes.
+  """
+  if codes is None:
+    return apply_in_chunks(field, params, points, viewdirs, chunk)
+  per_point_set = points.ndim == 4
+  n_conditions = jax.tree_util.tree_leaves(codes)[0].shape[0]
+
+  def rays_first(p, x, d):  # apply_in_chunks splits the leading (ray) axis.
+    if per_point_set:
+      x = jnp.moveaxis(x, 0, 1)
+    rgb, sigma = field(p, x, d, codes)
+    return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
+
+  if per_point_set:
+    points = jnp.moveaxis(points, 0, 1)
+  # The trunk runs once per sample, the heads once per (sample, condition): scale the chunk.
+  rgb, sigma = apply_in_chunks(rays_first, params, points, viewdirs,
+                               max(1, chunk // (n_conditions if per_point_set else 1)))
+  return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
+
+
+def render_level(field, params, rays, z_vals, conditioning, config, noise,
+                 white_background: bool, background=None):
+  """One level of the hierarchy: the field at depths z_vals [R, S] or [*L, R, S], composited.
+
+  Returns (composite's outputs, shared): `shared` is True when the density does not
+  depend on the conditioning (then every conditioning has the same weights).
+  """
+  codes = None if conditioning is None else field.codes(params, conditioning)
+  points, viewdirs = points_along(rays, z_vals)
+  rgb, raw_sigma = field_in_chunks(field, params, points, viewdirs, codes, config.mlp_chunk)
+  return (composite(rgb, raw_sigma, z_vals, rays, noise, white_background, background),
+          raw_sigma.ndim == 2)
+
+
+def fine_samples(z_coarse, weights, n_fine: int, u=None):
+  """The fine level's sorted depths: z_coarse [R, Sc] plus n_fine inverse-transform samples
+  of the coarse weights [R, Sc] or [*L, R, Sc] (NeRF section 5.2), no gradient through
+  their placement. Returns [R, Sc + n_fine] or [*L, R, Sc + n_fine]."""
+  mids = 0.5 * (z_coarse[..., 1:] + z_coarse[..., :-1])
+  lead = weights.shape[:-1]
+  if weights.ndim > z_coarse.ndim:  # one set of samples per conditioning.
+    mids = jnp.broadcast_to(mids, (*lead, mids.shape[-1]))
+    u = None if u is None else jnp.broadcast_to(u, (*lead, u.shape[-1]))
+  z_fine = sampling.sample_pdf(mids, jax.lax.stop_gradient(weights[..., 1:-1]), n_fine, u=u)
+  return jnp.sort(jnp.concatenate(
+      [jnp.broadcast_to(z_coarse, (*lead, z_coarse.shape[-1])),
+       jax.lax.stop_gradient(z_fine)], -1), -1)
+
+
+def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
                 randomness: Optional[Dict[str, jnp.ndarray]] = None,
-                white_background: bool = False) -> Dict[str, Dict[str, jnp.ndarray]]:
-  """Hierarchical volume sampling for a batch of rays (NeRF section 5.2).
+                white_background: bool = False, background: Optional[jnp.ndarray] = None,
+                conditioning=None) -> Dict[str, Dict[str, jnp.ndarray]]:
+  """Hierarchical volume sampling (NeRF section 5.2) of a batch of rays through any field:
+  the one renderer of every field.
 
   Coarse: n_coarse stratified samples through params["coarse"]. Fine: n_fine more drawn
   from the coarse weights by inverse-transform sampling; params["fine"] sees the sorted
   union of both sets.
 
+  With a `conditioning` (e.g. [M, style_dim] style vectors) the same rays render under
+  each of its M entries at once: `field.codes(params, conditioning)` runs once per level,
+  the field returns rgb [M, ...]. A field whose density does not depend on the
+  conditioning (the standard multi-style model) shares the samples and one trunk
+  evaluation per sample across all M; one whose density does (density-aware) draws fine
+  samples per conditioning, and the fine trunk runs per conditioning.
+
   Args:
-    field_fn: the radiance field, see FieldFn.
+    field: `field(params, points [R, S, 3], viewdirs [R, 1, 3]) -> (rgb [R, S, 3], raw
+      sigma [R, S])` (FieldFn); with a conditioning, a conditioned field (see
+      field_in_chunks).
     params: {"coarse": ..., "fine": ...}.
     rays: ray_bundle dict, leading shape [R].
+    config: the NerfConfig with the sampling settings.
     randomness: from draw_randomness; empty/None renders deterministically (evaluation).
+    background: [R, 3] colours both levels are composited over (replaces white_background),
+      or None.
+    conditioning: None, or [M, ...] per-batch conditioning.
   Returns:
-    {"coarse": outputs, "fine": outputs} with volume_render's outputs.
+    {"coarse": outputs, "fine": outputs} with volume_render's outputs and "z_vals", each
+    with a leading [M] when conditioned.
   """
   randomness = randomness or {}
   chex.assert_rank(rays["origins"], 2)
+  if conditioning is not None:
+    chex.assert_rank(conditioning, 2)
   z_coarse = sampling.stratified_samples(rays["near"], rays["far"], config.n_coarse,
                                          u=randomness.get("u_coarse"), lindisp=config.lindisp)
-  points, viewdirs = points_along(rays, z_coarse)
-  rgb, raw_sigma = apply_in_chunks(field_fn, params["coarse"], points, viewdirs,
-                                   config.mlp_chunk)
-  coarse = composite(rgb, raw_sigma, z_coarse, rays, randomness.get("noise_coarse"),
-                     white_background)
-
-  mids = 0.5 * (z_coarse[..., 1:] + z_coarse[..., :-1])
-  z_fine = sampling.sample_pdf(mids, jax.lax.stop_gradient(coarse["weights"][..., 1:-1]),
-                               config.n_fine, u=randomness.get("u_fine"))
-  z_all = jnp.sort(jnp.concatenate([z_coarse, jax.lax.stop_gradient(z_fine)], -1), -1)
-  points, viewdirs = points_along(rays, z_all)
-  rgb, raw_sigma = apply_in_chunks(field_fn, params["fine"], points, viewdirs, config.mlp_chunk)
-  fine = composite(rgb, raw_sigma, z_all, rays, randomness.get("noise_fine"), white_background)
+  coarse, shared = render_level(field, params["coarse"], rays, z_coarse, conditioning, config,
+                                randomness.get("noise_coarse"), white_background, background)
+  weights = coarse["weights"]
+  if shared and conditioning is not None:  # the same weights for every conditioning.
+    weights = weights[0]
+  z_all = fine_samples(z_coarse, weights, config.n_fine, randomness.get("u_fine"))
+  fine, _ = render_level(field, params["fine"], rays, z_all, conditioning, config,
+                         randomness.get("noise_fine"), white_background, background)
   return {"coarse": coarse, "fine": fine}
-
-
-def _styled_field_in_chunks(field, params, points, viewdirs, codes, chunk: int):
-  """A style field over points [R, S, 3] (shared) or [M, R, S, 3] (per style), in chunks of
-  whole rays. Returns rgb [M, R, S, 3] and raw sigma [R, S] or [M, R, S]."""
-  per_style = points.ndim == 4
-  n_styles = jax.tree_util.tree_leaves(codes)[0].shape[0]
-
-  def rays_first(p, x, d):  # apply_in_chunks splits the leading (ray) axis.
-    if per_style:
-      x = jnp.moveaxis(x, 0, 1)
-    rgb, sigma = field(p, x, d, codes)
-    return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
-
-  if per_style:
-    points = jnp.moveaxis(points, 0, 1)
-  # The trunk runs once per sample, the heads once per (sample, style): scale the chunk down.
-  rgb, sigma = apply_in_chunks(rays_first, params, points, viewdirs,
-                               max(1, chunk // (n_styles if per_style else 1)))
-  return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
 
 
 def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.ndarray,
                        config, randomness: Optional[Dict[str, jnp.ndarray]] = None,
                        white_background: bool = False) -> Dict[str, Dict[str, jnp.ndarray]]:
-  """Hierarchical volume sampling of the same rays in M styles at once.
-
-  The style heads run once per style (`field.codes`). With a frozen density (standard
-  variant) the weights do not depend on the style, so all styles share the coarse and fine
-  samples and one trunk evaluation per sample. A density-aware field returns a density per
-  style; then each style draws its own fine samples and the fine trunk runs per style.
-
-  Args:
-    field: a style field: `field.codes(params, styles)` and
-      `field(params, points, viewdirs, codes) -> (rgb [M, ..., 3], raw sigma)`.
-    params: {"coarse": ..., "fine": ...}.
-    rays: ray_bundle dict, leading shape [R].
-    styles: [M, style_dim] style vectors.
-    config: the NerfConfig with the sampling settings.
-  Returns:
-    {"coarse": outputs, "fine": outputs}, volume_render's outputs with a leading [M].
-  """
-  randomness = randomness or {}
-  chex.assert_rank([rays["origins"], styles], 2)
-  n_styles = styles.shape[0]
-
-  def composite_styles(rgb, raw_sigma, z_vals, noise):
-    shape = rgb.shape[:-1]  # [M, R, S]
-    if noise is not None:
-      raw_sigma = raw_sigma + noise
-    return volume_render(rgb, jax.nn.relu(jnp.broadcast_to(raw_sigma, shape)),
-                         jnp.broadcast_to(z_vals, shape),
-                         jnp.broadcast_to(rays["directions"], (*shape[:2], 3)), white_background)
-
-  z_coarse = sampling.stratified_samples(rays["near"], rays["far"], config.n_coarse,
-                                         u=randomness.get("u_coarse"), lindisp=config.lindisp)
-  points, viewdirs = points_along(rays, z_coarse)
-  codes = field.codes(params["coarse"], styles)
-  rgb, raw_sigma = _styled_field_in_chunks(field, params["coarse"], points, viewdirs, codes,
-                                           config.mlp_chunk)
-  coarse = composite_styles(rgb, raw_sigma, z_coarse, randomness.get("noise_coarse"))
-
-  shared = raw_sigma.ndim == 2  # the density does not depend on the style.
-  weights = coarse["weights"][0] if shared else coarse["weights"]  # [R, S] or [M, R, S]
-  mids = 0.5 * (z_coarse[..., 1:] + z_coarse[..., :-1])
-  u_fine = randomness.get("u_fine")
-  if not shared:
-    mids = jnp.broadcast_to(mids, (n_styles, *mids.shape))
-    u_fine = None if u_fine is None else jnp.broadcast_to(u_fine, (n_styles, *u_fine.shape))
-  z_fine = sampling.sample_pdf(mids, jax.lax.stop_gradient(weights[..., 1:-1]), config.n_fine,
-                               u=u_fine)
-  z_all = jnp.sort(jnp.concatenate(
-      [jnp.broadcast_to(z_coarse, z_fine.shape[:-1] + z_coarse.shape[-1:]),
-       jax.lax.stop_gradient(z_fine)], -1), -1)
-  if shared:
-    points, viewdirs = points_along(rays, z_all)
-  else:
-    points = rays["origins"][:, None, :] + rays["directions"][:, None, :] * z_all[..., None]
-  codes = field.codes(params["fine"], styles)
-  rgb, raw_sigma = _styled_field_in_chunks(field, params["fine"], points, viewdirs, codes,
-                                           config.mlp_chunk)
-  fine = composite_styles(rgb, raw_sigma, z_all, randomness.get("noise_fine"))
-  return {"coarse": coarse, "fine": fine}
+  """render_rays of the same rays in M styles at once: styles [M, style_dim] are the
+  conditioning of a style field (`field.codes(params, styles)` and
+  `field(params, points, viewdirs, codes) -> (rgb [M, ..., 3], raw sigma)`). Returns
+  {"coarse", "fine"} outputs with a leading [M]."""
+  return render_rays(field, params, rays, config, randomness, white_background,
+                     conditioning=styles)
 
 
 IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
@@ -200,11 +215,8 @@ IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
 
 @functools.partial(jax.jit, static_argnums=(0, 2, 3))
 def _render_chunk(field_fn, params, config, white_background, rays, styles=None):
-  if styles is None:
-    out = render_rays(field_fn, params, rays, config, None, white_background)["fine"]
-  else:
-    out = render_rays_styles(field_fn, params, rays, styles, config, None,
-                             white_background)["fine"]
+  out = render_rays(field_fn, params, rays, config, None, white_background,
+                    conditioning=styles)["fine"]
   return {k: out[k] for k in IMAGE_OUTPUTS}
 
 

@@ -1,14 +1,14 @@
 """The volume-rendering equation (NeRF eq. 3) as one short function."""
 
-from typing import Dict
+from typing import Dict, Optional
 
 import chex
 import jax.numpy as jnp
 
 
 def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
-                  directions: jnp.ndarray, white_background: bool = False
-                  ) -> Dict[str, jnp.ndarray]:
+                  directions: jnp.ndarray, white_background: bool = False,
+                  background: Optional[jnp.ndarray] = None) -> Dict[str, jnp.ndarray]:
   """Composites samples along rays into pixel colours.
 
   C = sum_i T_i alpha_i c_i with alpha_i = 1 - exp(-sigma_i delta_i) and
@@ -21,6 +21,8 @@ def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
     z_vals: [..., n] sample depths along the ray, increasing.
     directions: [..., 3] ray directions (not necessarily unit length).
     white_background: composite over white: rgb + (1 - accumulation).
+    background: [..., 3] (or broadcastable) colours to composite over instead,
+      rgb + (1 - accumulation) * background: training against random backgrounds.
   Returns:
     dict of rgb [..., 3], depth [...], disparity [...], accumulation [...], weights [..., n].
   """
@@ -40,7 +42,9 @@ def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
   # never 0/0: the guard keeps NaN out of both values and their gradients.
   safe_acc = jnp.maximum(acc, 1e-10)
   disparity = 1.0 / jnp.maximum(1e-10, jnp.where(acc > 1e-10, depth / safe_acc, 0.0))
-  if white_background:
+  if background is not None:
+    color = color + (1.0 - acc[..., None]) * background
+  elif white_background:
     color = color + (1.0 - acc[..., None])
   return {"rgb": color, "depth": depth, "disparity": disparity, "accumulation": acc,
           "weights": weights}

@@ -112,13 +112,16 @@ TWO_DEVICES = textwrap.dedent("""
     sys.path.insert(0, {tests!r})
     from test_train_nerf import TINY
     import dataclasses
-    config = dataclasses.replace(TINY, raw_noise_std=0.5)  # randomness of every kind
+    config = dataclasses.replace(TINY, raw_noise_std=0.5, random_background=True,
+                                 distortion_weight=0.01)  # randomness of every kind
     assert jax.local_device_count() == 2
     scene, _ = load_scene(DataConfig(path={scene!r}))
     import jax.numpy as jnp
     batch = nerf.sample_batch(jax.random.PRNGKey(7), jnp.asarray(scene.images), jnp.asarray(scene.c2w),
                               jnp.asarray(scene.K), config, False, False,
-                              (scene.height, scene.width, scene.focal), 2.0, 6.0)
+                              (scene.height, scene.width, scene.focal), 2.0, 6.0,
+                              jnp.asarray(scene.alphas))
+    assert "background" in batch
     state = nerf.init_state(config)
     one, s1 = nerf.compile_train_step(config, True, 1)(nerf.init_state(config), batch)
     two, s2 = nerf.compile_train_step(config, True, 2)(state_lib.replicate(nerf.init_state(config)),

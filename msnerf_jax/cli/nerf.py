@@ -1,5 +1,6 @@
 """`msnerf nerf train | eval | render`: the geometry stage."""
 
+import argparse
 import json
 import os
 import time
@@ -40,6 +41,13 @@ def register(commands, formatter):
                  help="stratified samples per ray (default: preset's)")
   p.add_argument("--n-fine", type=int, default=None,
                  help="extra hierarchical samples per ray (default: preset's)")
+  p.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
+                 help="train against a random background colour per ray and step, so empty "
+                      "space stays empty (needs images with alpha; default: on for Blender "
+                      "scenes with preset cpu, off with preset paper, as the reference code)")
+  p.add_argument("--distortion-weight", type=float, default=None,
+                 help="weight of the mip-NeRF 360 distortion loss against semi-transparent "
+                      "floaters, for scenes without alpha (default: 0, off)")
   p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
   p.add_argument("--devices", type=int, default=None,
                  help="local devices to train on (default: all; gradients are averaged)")
@@ -80,6 +88,8 @@ def cmd_train(args):
     value = getattr(args, flag)
     if value is not None and value < 1:
       raise UserError(f"--{flag.replace('_', '-')} {value}: must be >= 1")
+  if args.distortion_weight is not None and not args.distortion_weight >= 0:
+    raise UserError(f"--distortion-weight {args.distortion_weight}: must be >= 0")
   if (args.stylized is None) != (args.style is None):
     raise UserError("--stylized and --style go together (a dataset folder and one of its styles)")
   scene, data_config = load_scene(data_config)
@@ -92,7 +102,9 @@ def cmd_train(args):
                                   batch_rays=args.batch_rays, seed=args.seed,
                                   checkpoint_every=args.checkpoint_every,
                                   net_depth=args.net_depth, net_width=args.net_width,
-                                  n_coarse=args.n_coarse, n_fine=args.n_fine)
+                                  n_coarse=args.n_coarse, n_fine=args.n_fine,
+                                  random_background=args.random_background,
+                                  distortion_weight=args.distortion_weight)
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; preset {args.preset}"
         + (f"; style {args.style} of {args.stylized}" if style else ""))
@@ -117,13 +129,23 @@ def cmd_eval(args):
   out_dir = os.path.join(args.run, f"eval_{args.split}")
   for row, out in zip(rows, renders):
     write_image(os.path.join(out_dir, os.path.splitext(row["view"])[0] + ".png"), out["rgb"])
-  result = {"step": run.step, "split": args.split, "mean": mean, "views": rows}
+  nan_to_none = lambda row: {k: None if isinstance(v, float) and np.isnan(v) else v
+                             for k, v in row.items()}  # strict JSON has no NaN
+  result = {"step": run.step, "split": args.split, "mean": nan_to_none(mean),
+            "views": [nan_to_none(row) for row in rows]}
   atomic_write_bytes(os.path.join(out_dir, "metrics.json"), json.dumps(result, indent=2).encode())
-  print(f"{'view':<24} {'PSNR':>7} {'SSIM':>7}")
+  opacity = "opacity_background" in mean
+  print(f"{'view':<24} {'PSNR':>7} {'SSIM':>7}"
+        + (f" {'opacity empty':>14} {'opacity object':>15}" if opacity else ""))
   for row in rows:
-    print(f"{row['view']:<24} {row['psnr']:7.2f} {row['ssim']:7.4f}")
-  print_summary(f"NeRF eval on {args.split} (step {run.step})", [
-      ("mean PSNR", f"{mean['psnr']:.2f} dB"), ("mean SSIM", f"{mean['ssim']:.4f}"),
+    print(f"{row['view']:<24} {row['psnr']:7.2f} {row['ssim']:7.4f}"
+          + (f" {row['opacity_background']:14.3f} {row['opacity_object']:15.3f}"
+             if opacity else ""))
+  lines = [("mean PSNR", f"{mean['psnr']:.2f} dB"), ("mean SSIM", f"{mean['ssim']:.4f}")]
+  if opacity:  # ground-truth alpha 0 / 255: fog in empty space, holes in the object.
+    lines += [("mean opacity", f"{mean['opacity_background']:.3f} on empty space, "
+                               f"{mean['opacity_object']:.3f} on the object")]
+  print_summary(f"NeRF eval on {args.split} (step {run.step})", lines + [
       ("time", f"{time.time() - t0:.1f} s"), ("renders", out_dir)])
 
 

@@ -14,6 +14,7 @@ from msnerf_jax import checkpoint as ckpt_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import rays as rays_lib
+from msnerf_jax import regularizers
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
@@ -37,15 +38,18 @@ class NerfField:
 
 @functools.partial(jax.jit, static_argnames=("config", "precrop", "ndc", "shape"))
 def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bool,
-                 shape, near: float, far: float):
+                 shape, near: float, far: float, alphas=None):
   """A random global batch of training rays with their target colours and randomness.
 
   Args:
     images: [N, H, W, 3] training images; c2w: [N, 3, 4]; K: [3, 3].
     precrop: draw pixels only from the central precrop_frac of each image.
     shape: (H, W, focal) static for the NDC warp.
+    alphas: [N, H, W] uint8 opacity of the images (composited over white): given, every
+      ray gets a random background colour (see pixel_batch); None: the images as they are.
   Returns:
-    {"rays": ray_bundle [B], "rgb": [B, 3], "random": draw_randomness [B, ...]}.
+    {"rays": ray_bundle [B], "rgb": [B, 3], "random": draw_randomness [B, ...]}, plus
+    "background" [B, 3] with alphas.
   """
   n, h, w = images.shape[:3]
   k_img, k_row, k_col, k_rand = jax.random.split(key, 4)
@@ -58,33 +62,55 @@ def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bo
   else:
     rows = jax.random.randint(k_row, (b,), 0, h)
     cols = jax.random.randint(k_col, (b,), 0, w)
-  return pixel_batch(k_rand, images, c2w, K, idx, rows, cols, config, ndc, shape, near, far)
+  return pixel_batch(k_rand, images, c2w, K, idx, rows, cols, config, ndc, shape, near, far,
+                     alphas)
 
 
 def pixel_batch(key, images, c2w, K, idx, rows, cols, config: NerfConfig, ndc: bool, shape,
-                near: float, far: float):
+                near: float, far: float, alphas=None):
   """Chosen training pixels as a batch: idx, rows, cols [B] (view, row, column of each).
 
   Returns {"rays": ray_bundle [B], "rgb": images[idx, rows, cols], "random":
-  draw_randomness [B] from `key`}.
+  draw_randomness [B] from `key`}. With `alphas` [N, H, W] uint8 (the images' opacity, the
+  images composited over white), also "background" [B, 3]: uniform random colours drawn
+  from `key` (a stream of their own, so the other draws stay as without them), and "rgb" is
+  the photo composited over them instead: c a + bg (1 - a) = image + (1 - a) (bg - 1).
   """
   origins, directions = rays_lib.pixel_rays(K, c2w[idx], rows, cols)
   rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, shape[0], shape[1], shape[2])
-  return {"rays": rays, "rgb": images[idx, rows, cols],
-          "random": render_lib.draw_randomness(key, idx.shape[0], config)}
+  batch = {"rays": rays, "rgb": images[idx, rows, cols],
+           "random": render_lib.draw_randomness(key, idx.shape[0], config)}
+  if alphas is not None:
+    alpha = alphas[idx, rows, cols][:, None].astype(jnp.float32) / 255.0
+    background = jax.random.uniform(jax.random.fold_in(key, 1), (idx.shape[0], 3))
+    batch["rgb"] = batch["rgb"] + (1.0 - alpha) * (background - 1.0)
+    batch["background"] = background
+  return batch
 
 
 # ----------------------------------------------------------------------------- the step
 
 
 def loss_fn(params, batch, config: NerfConfig, white_background: bool):
-  """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6)."""
+  """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6).
+
+  A batch with "background" [B, 3] is rendered over those colours (random backgrounds).
+  With config.distortion_weight > 0, adds that weight times the mean distortion loss
+  (regularizers.distortion) of both levels' weights.
+  """
   out = render_lib.render_rays(NerfField(config), params, batch["rays"], config,
-                               batch["random"], white_background)
+                               batch["random"], white_background, batch.get("background"))
   mse_coarse = jnp.mean((out["coarse"]["rgb"] - batch["rgb"]) ** 2)
   mse_fine = jnp.mean((out["fine"]["rgb"] - batch["rgb"]) ** 2)
-  return mse_coarse + mse_fine, {"loss": mse_coarse + mse_fine, "mse_coarse": mse_coarse,
-                                 "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  loss = mse_coarse + mse_fine
+  stats = {"mse_coarse": mse_coarse, "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  if config.distortion_weight > 0:
+    rays = batch["rays"]
+    stats["distortion"] = sum(
+        jnp.mean(regularizers.distortion(level["weights"], level["z_vals"], rays["near"],
+                                         rays["far"])) for level in out.values())
+    loss = loss + config.distortion_weight * stats["distortion"]
+  return loss, {"loss": loss, **stats}
 
 
 def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
@@ -142,9 +168,15 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)}
   if style is not None:
     record["style"] = dict(style)
+  if config.random_background and scene.alphas is None:
+    raise UserError(f"{data_config.path}: random backgrounds need images with an alpha "
+                    f"channel (a Blender RGBA scene); this {scene.format} scene has none: "
+                    "train with --no-random-background (and --distortion-weight against "
+                    "floaters)")
   ckpt_lib.prepare_run_dir(run_dir, "nerf", record)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
+  alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
   c2w = jnp.asarray(scene.c2w[train_idx])
   K = jnp.asarray(scene.K)
   base_key = jax.random.PRNGKey(config.seed)
@@ -152,7 +184,8 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
 
   def batch_fn(step):  # per-step key: resuming replays the same batches.
     return sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config,
-                        step < config.precrop_steps, scene.ndc, shape, scene.near, scene.far)
+                        step < config.precrop_steps, scene.ndc, shape, scene.near, scene.far,
+                        alphas)
 
   return loop_lib.fit(init_state(config), compile_train_step(config, scene.white_background,
                                                              n_devices),
@@ -174,15 +207,24 @@ def render_view(scene: Scene, params, config: NerfConfig, c2w: np.ndarray,
 
 def evaluate(scene: Scene, params, config: NerfConfig, split: str = "val",
              chunk: Optional[int] = None, progress: bool = True):
-  """PSNR/SSIM of the fine renders on a split. Returns (per-view list, mean dict, renders)."""
+  """PSNR/SSIM of the fine renders on a split. Returns (per-view list, mean dict, renders).
+
+  On scenes with alpha, each view also gets the mean rendered opacity on its ground-truth
+  empty space and on its object (metrics.mask_opacity: "opacity_background",
+  "opacity_object"): white fog over a white background costs no PSNR, but shows there.
+  """
   idx = scene.split(split)
   rows, renders = [], []
   for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
     out = render_view(scene, params, config, scene.c2w[i], chunk)
     target = scene.images[i]
-    rows.append({"view": os.path.basename(scene.image_paths[i]),
-                 "psnr": float(metrics.psnr(out["rgb"], target)),
-                 "ssim": float(metrics.ssim(out["rgb"], target))})
+    row = {"view": os.path.basename(scene.image_paths[i]),
+           "psnr": float(metrics.psnr(out["rgb"], target)),
+           "ssim": float(metrics.ssim(out["rgb"], target))}
+    if scene.alphas is not None:
+      opacity = metrics.mask_opacity(out["accumulation"], scene.alphas[i])
+      row.update({f"opacity_{k}": v for k, v in opacity.items()})
+    rows.append(row)
     renders.append(out)
-  mean = {k: float(np.mean([r[k] for r in rows])) for k in ("psnr", "ssim")}
+  mean = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0] if k != "view"}
   return rows, mean, renders
