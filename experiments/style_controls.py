@@ -34,7 +34,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # pylint: disable=g-import-not-at-top
 from msnerf_jax import evaluate, metrics, video
 from msnerf_jax import stylize as stylize_lib
-from msnerf_jax.checkpoint import load_run
+from msnerf_jax.runs import load_run
 from msnerf_jax.cli.common import load_run_and_scene
 from msnerf_jax.cli.multistyle import blend, resolve_style
 from msnerf_jax.data import images as images_lib

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli
+from msnerf_jax import checkpoint, cli, runs
 from msnerf_jax import config as config_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data import images as images_lib
@@ -321,7 +321,7 @@ def case_checkpoint_of_another_config(world, tmp):
   must refuse and leave the run as it is."""
   config, data = _cli_nerf_config(world["scene"])
   run = str(tmp / "run")
-  checkpoint.prepare_run_dir(run, "nerf", {"config": config_lib.to_dict(config),
+  runs.prepare_run_dir(run, "nerf", {"config": config_lib.to_dict(config),
                                            "data": config_lib.to_dict(data)})
   ckpts = checkpoint.Checkpoints(run)
   ckpts.save(2, state_lib.checkpoint_tree(nerf.init_state(TINY)))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli, load_run
+from msnerf_jax import checkpoint, cli, load_run, runs
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
@@ -511,7 +511,7 @@ def single_red(world):
 
 def test_single_style_nerf_trains_on_the_style_views(world, single_red):
   run = load_run(single_red)
-  scene, _ = checkpoint.scene_of(run)
+  scene, _ = runs.scene_of(run)
   assert run.kind == "nerf" and run.record["style"]["name"] == "red"
   for i in (0, 5):
     view = np.asarray(Image.open(os.path.join(world["stylized"], "red", f"{i:04d}.png")))

@@ -27,7 +27,7 @@ def output_stem(path: str) -> str:
 def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.checkpoint import load_run, scene_of
+  from msnerf_jax.runs import load_run, scene_of
   run = load_run(run_dir, kind)
   return run, scene_of(run)[0]
 

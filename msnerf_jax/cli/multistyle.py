@@ -271,7 +271,7 @@ def cmd_render(args):
   # pylint: disable=g-import-not-at-top
   from tqdm.auto import tqdm
   from msnerf_jax import video
-  from msnerf_jax.checkpoint import read_run_file
+  from msnerf_jax.runs import read_run_file
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.train import multistyle
   if read_run_file(args.run)["kind"] == "nerf":

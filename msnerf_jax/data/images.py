@@ -1,5 +1,6 @@
 """Robust image reading and writing: any common format, mode and bit depth in, float32 RGB out."""
 
+import numbers
 import os
 import tempfile
 import warnings
@@ -146,6 +147,12 @@ def resize(image: np.ndarray, height: int, width: int) -> np.ndarray:
       for c in range(image.shape[-1])
   ]
   return np.clip(np.stack(channels, axis=-1), 0.0, 1.0).astype(np.float32)
+
+
+def check_scale(scale: int, what: str = "--stylize-scale") -> None:
+  """UserError unless `scale` (stylize_image's) is a whole number >= 1; `what` names its source."""
+  if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
+    raise UserError(f"{what} {scale!r}: must be a whole number >= 1")
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:

@@ -25,9 +25,8 @@ from tqdm.auto import tqdm
 
 from msnerf_jax import config as config_lib
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data.scene import Scene
+from msnerf_jax.data.scene import Scene, drop_legacy_data_keys
 from msnerf_jax.errors import UserError
-from msnerf_jax.stylize import check_scale
 
 MANIFEST = "manifest.json"
 POSES = "poses.npy"
@@ -82,7 +81,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   for a in alphas:
     if not 0.0 <= a <= 1.0:
       raise UserError(f"--alphas {a}: must be in [0, 1]")
-  check_scale(stylize_scale)
+  images_lib.check_scale(stylize_scale)
   styles = [{"name": style_name(p, a), "source": os.path.abspath(p), "alpha": float(a)}
             for p, a in zip(style_paths, alphas)]
   if include_original:
@@ -178,8 +177,10 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   required = ("data", "height", "width", "n_views", "splits", "styles", "done")
   if not isinstance(manifest, dict) or any(k not in manifest for k in required):
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
+  if isinstance(manifest["data"], dict):
+    drop_legacy_data_keys(manifest["data"], path)
   # Datasets made before the option existed were stylized at scale 1.
-  check_scale(manifest.setdefault("stylize_scale", 1), f"{path}: stylize_scale")
+  images_lib.check_scale(manifest.setdefault("stylize_scale", 1), f"{path}: stylize_scale")
   kind = manifest.setdefault("content_stats", "view")
   if kind not in CONTENT_STATS_KINDS:
     raise UserError(f"{path}: content_stats is {kind!r}, expected one of "
