@@ -152,6 +152,12 @@ def scene_of(run: Run):
   return scene, data
 
 
+def load_run_and_scene(run_dir: str, kind: str):
+  """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
+  run = load_run(run_dir, kind)
+  return run, scene_of(run)[0]
+
+
 def _expected_params(kind: str, config: Any):
   """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
   # pylint: disable=g-import-not-at-top

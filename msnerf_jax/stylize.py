@@ -2,7 +2,7 @@
 
 import dataclasses
 import os
-from typing import Any, Optional, Sequence, Tuple
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import chex
 import jax
@@ -14,6 +14,8 @@ from msnerf_jax import adain as adain_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import runs as runs_lib
 from msnerf_jax.data import images as images_lib
+from msnerf_jax.data import stylized as stylized_lib
+from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
@@ -230,3 +232,37 @@ def check_weights(weights: Sequence[float], n_styles: int) -> None:
     raise UserError(f"--weights: got {len(weights)} weights for {n_styles} styles")
   if any(not np.isfinite(x) or x < 0 for x in weights) or sum(weights) <= 0:
     raise UserError(f"--weights {' '.join(map(str, weights))}: must be >= 0 with a positive sum")
+
+
+def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str], out: str,
+                         alphas: Optional[Sequence[float]] = None, include_original: bool = False,
+                         downscale: int = 0, stylize_scale: int = 1, scene_stats: bool = False,
+                         progress: bool = True) -> Tuple[Dict[str, Any], Scene]:
+  """Writes (or completes) the stylized dataset of the scene folder `data` in `out`: every
+  view in every style image by the AdaIN decoder of `decoder_dir` (`msnerf stylize-scene`).
+
+  Args:
+    alphas: strength per style in [0, 1] (default 1 each).
+    include_original: add the unstylized views as the style "original".
+    downscale: the scene's image downscale (0 = the format's default).
+    stylize_scale: stylize each view enlarged this many times (see `stylize_image`).
+    scene_stats: normalise every view by the training views' statistics
+      (`scene_content_stats`) instead of its own.
+  Returns:
+    (data.stylized.stylize_scene's summary dict, the loaded scene).
+  """
+  alphas = list(alphas) if alphas is not None else [1.0] * len(style_paths)
+  decoder = load_decoder(decoder_dir)
+  scene, data_config = load_scene(config_lib.DataConfig(path=os.path.abspath(data),
+                                                        downscale=downscale))
+  encoder = vgg.load_vgg_params()
+  summary = stylized_lib.stylize_scene(
+      scene, data_config,
+      lambda view, style, alpha, scale, stats: stylize_image(
+          decoder, encoder, view, [style], alpha=alpha, scale=scale, content_stats=stats),
+      lambda image: stylized_lib.style_vector_of(encoder, image),
+      style_paths, alphas, include_original, out, progress=progress,
+      decoder=decoder_dir, stylize_scale=stylize_scale,
+      content_stats_fn=(lambda views, scale: scene_content_stats(
+          encoder, views, scale, progress=progress)) if scene_stats else None)
+  return summary, scene

@@ -252,7 +252,7 @@ def test_trunk_is_frozen_and_heads_train(world, trained):
 
 
 def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
-  from msnerf_jax.cli.multistyle import blend  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.styles import blend  # pylint: disable=g-import-not-at-top
   run, scene = load_run(trained), world["scene"]
   vectors = multistyle.style_vectors(run)
   a, b = vectors["red"], vectors["blue"]

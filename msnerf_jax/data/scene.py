@@ -50,6 +50,13 @@ class Scene:
       raise UserError(f"scene has no {name!r} split (has: {', '.join(sorted(self.splits))})")
     return self.splits[name]
 
+  def path_poses(self, frames: int = 0) -> np.ndarray:
+    """The render path resampled to `frames` evenly spaced cameras [frames, 3, 4] (0 = all)."""
+    poses = self.render_poses
+    if frames > 0:
+      poses = poses[np.linspace(0, len(poses) - 1, frames).round().astype(int)]
+    return poses
+
   def camera_rays(self, c2w: np.ndarray) -> Dict[str, jnp.ndarray]:
     """ray_bundle for every pixel of one camera: [H, W, ...]."""
     origins, directions = rays_lib.get_rays(self.height, self.width, self.K, c2w)
