@@ -72,7 +72,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     content_stats_fn(views, scale) -> (mean, std) [1, C]: with it, every view is normalised
       by the content statistics of the training views (stylize.scene_content_stats), saved
       as content_stats.npy so that a resumed run uses the same; without it, each view by its
-      own (per-view AdaIN, as in METHOD.md).
+      own (per-view AdaIN, as in docs/method.md).
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
