@@ -69,19 +69,14 @@ def _load_record(out: str) -> Dict[str, Any]:
   path = os.path.join(out, RECORD)
   if not os.path.exists(path):
     return {"stages": {}}
-  try:
-    with open(path) as f:
-      record = json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e}); delete it to re-check every stage") from None
+  record = images_lib.read_json(path, "; delete it to re-check every stage")
   if not isinstance(record, dict) or not isinstance(record.get("stages"), dict):
     raise UserError(f"{path}: not a pipeline record; delete it to re-check every stage")
   return record
 
 
 def _save_record(out: str, record: Dict[str, Any]) -> None:
-  images_lib.atomic_write_bytes(os.path.join(out, RECORD),
-                                json.dumps(record, indent=2, sort_keys=True).encode())
+  images_lib.write_json(os.path.join(out, RECORD), record)
 
 
 class _Scene:

@@ -10,7 +10,7 @@ import numpy as np
 
 from msnerf_jax import config as config_lib
 from msnerf_jax.checkpoint import CHECKPOINT_DIR, Checkpoints
-from msnerf_jax.data.images import atomic_write_bytes
+from msnerf_jax.data.images import read_json, write_json
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
 from msnerf_jax.errors import UserError
 
@@ -32,11 +32,7 @@ def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
   path = os.path.join(run_dir, RUN_FILE)
   if not os.path.exists(path):
     raise UserError(f"{path}: missing; {run_dir} is not a msnerf run folder")
-  try:
-    with open(path) as f:
-      run = json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e})") from None
+  run = read_json(path)
   if not isinstance(run, dict) or "kind" not in run or "config" not in run:
     raise UserError(f"{path}: missing 'kind' or 'config'")
   if isinstance(run.get("data"), dict):
@@ -77,14 +73,14 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
     if mismatch:
       raise UserError(f"{run_dir}: was made with another config ({mismatch}); "
                       "use another --out, or the same options to resume")
-    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
+    write_json(path, record)
     return True
   if os.path.isdir(run_dir) and os.listdir(run_dir):
     if os.path.exists(os.path.join(run_dir, CHECKPOINT_DIR)):
       raise UserError(f"{run_dir}: has checkpoints but no {RUN_FILE}; refusing to overwrite")
   try:
     os.makedirs(run_dir, exist_ok=True)
-    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
+    write_json(path, record)
   except PermissionError:
     raise UserError(f"{run_dir}: not writable") from None
   except OSError as e:

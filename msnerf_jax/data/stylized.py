@@ -15,7 +15,6 @@ its views exist, so an interrupted `stylize-scene` continues where it stopped.
 """
 
 import dataclasses
-import json
 import os
 import re
 from typing import Any, Dict, List, Optional, Sequence
@@ -44,10 +43,6 @@ def style_name(path: str, alpha: float = 1.0) -> str:
 
 def view_file(out_dir: str, name: str, index: int) -> str:
   return os.path.join(out_dir, name, f"{index:04d}.png")
-
-
-def _write_json(path: str, value: Any) -> None:
-  images_lib.atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
 
 
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
@@ -118,7 +113,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   try:
     os.makedirs(out_dir, exist_ok=True)
     images_lib.write_npy(os.path.join(out_dir, POSES), scene.c2w)
-    _write_json(path, manifest)
+    images_lib.write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
 
@@ -159,7 +154,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       images_lib.write_image(target, view)
       written += 1
     manifest["done"].append(name)
-    _write_json(path, manifest)
+    images_lib.write_json(path, manifest)
   return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
 
 
@@ -168,12 +163,9 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   if not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: no such stylized dataset folder")
   try:
-    with open(path) as f:
-      manifest = json.load(f)
+    manifest = images_lib.read_json(path)
   except FileNotFoundError:
     raise UserError(f"{path}: missing; make the dataset with `msnerf stylize-scene`") from None
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e})") from None
   required = ("data", "height", "width", "n_views", "splits", "styles", "done")
   if not isinstance(manifest, dict) or any(k not in manifest for k in required):
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")

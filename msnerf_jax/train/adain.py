@@ -346,8 +346,6 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
 
 
 def _write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
-  import json  # pylint: disable=g-import-not-at-top
   record = runs_lib.read_run_file(run_dir)
   record["summary"] = summary
-  images_lib.atomic_write_bytes(os.path.join(run_dir, runs_lib.RUN_FILE),
-                                json.dumps(record, indent=2, sort_keys=True).encode())
+  images_lib.write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)
