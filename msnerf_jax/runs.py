@@ -12,6 +12,7 @@ from msnerf_jax import config as config_lib
 from msnerf_jax.checkpoint import CHECKPOINT_DIR, Checkpoints
 from msnerf_jax.data.images import read_json, write_json
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
+from msnerf_jax.data.stylized import style_views
 from msnerf_jax.errors import UserError
 
 RUN_FILE = "run.json"
@@ -135,7 +136,6 @@ def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
 def scene_of(run: Run):
   """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
   style of a stylized dataset (run.json's "style"), that style's views are its images."""
-  from msnerf_jax.data.stylized import style_views  # pylint: disable=g-import-not-at-top
   source = os.path.join(run.run_dir, RUN_FILE)
   if "data" not in run.record:
     raise UserError(f"{source}: a {run.kind!r} run has no scene")
