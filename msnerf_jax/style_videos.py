@@ -21,7 +21,7 @@ def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRe
 
 
 def spaced_views(poses: np.ndarray, n: int) -> np.ndarray:
-  """n cameras [n, 3, 4] evenly spaced along `poses`, the first and last included."""
+  """n cameras [n, 3, 4] from `poses` [P, 3, 4], (P - 1) / n apart, starting at the first."""
   return poses[np.linspace(0, len(poses) - 1, max(1, n) + 1)[:-1].round().astype(int)]
 
 
