@@ -34,12 +34,11 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # pylint: disable=g-import-not-at-top
 from msnerf_jax import evaluate, metrics, video
 from msnerf_jax import stylize as stylize_lib
-from msnerf_jax.checkpoint import load_run
-from msnerf_jax.cli.common import load_run_and_scene
-from msnerf_jax.cli.multistyle import blend, resolve_style
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.models import vgg
+from msnerf_jax.runs import load_run, load_run_and_scene
+from msnerf_jax.styles import resolve_style, sweep
 from msnerf_jax.train import multistyle
 from msnerf_jax.train import nerf as nerf_lib
 
@@ -94,7 +93,7 @@ def main():
       nerf_run = load_run(run.record["nerf_run"])
       photo = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w,
                                     args.chunk)["rgb"] for c2w in poses]
-    sweeps = render([blend(ends[0], ends[1], t) for t in ts])
+    sweeps = render(sweep(ends[0], ends[1], len(ts)))
     grid = [list(s) for s in sweeps]
     key = "t" if args.mode == "interp" else "s"
     for k, t in enumerate(ts):

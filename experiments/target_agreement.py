@@ -31,7 +31,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # pylint: disable=g-import-not-at-top
 from msnerf_jax import consistency
-from msnerf_jax.checkpoint import load_run
+from msnerf_jax.runs import load_run
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
 from msnerf_jax.train import nerf as nerf_lib

@@ -99,13 +99,6 @@ def blend_stats(means: jnp.ndarray, stds: jnp.ndarray,
   return (w @ means)[None], (w @ stds)[None]
 
 
-def blend_style_vectors(vectors: jnp.ndarray, weights: jnp.ndarray) -> jnp.ndarray:
-  """Weighted blend of style vectors [K, 1024] with weights [K] (normalised) -> [1024]."""
-  chex.assert_rank([vectors, weights], [2, 1])
-  chex.assert_axis_dimension(vectors, 0, weights.shape[0])
-  return (weights / jnp.sum(weights)) @ vectors
-
-
 @functools.partial(jax.jit, static_argnames=("all_layers",))
 def encode(encoder_params: Any, images: jnp.ndarray, all_layers: bool = False) -> Dict[str, jnp.ndarray]:
   """VGG features of images [B, H, W, 3] in [0, 1]: dict relu1_1 ... relu4_1 (jitted; inlined
@@ -139,12 +132,6 @@ def style_vector(encoder_params: Any, image: jnp.ndarray) -> jnp.ndarray:
 
 
 style_vector_jit = jax.jit(style_vector)
-
-
-def stats_from_vector(vector: jnp.ndarray) -> Tuple[jnp.ndarray, jnp.ndarray]:
-  """Inverse of the concatenation: [1024] -> (mean [1, 512], std [1, 512])."""
-  chex.assert_shape(vector, (1024,))
-  return vector[None, :512], vector[None, 512:]
 
 
 def style_loss(output_stats: Dict[str, Tuple[jnp.ndarray, jnp.ndarray]],

@@ -1,99 +1,16 @@
-"""Run folders: saved config, atomic orbax checkpoints with resume, and `load_run`."""
+"""Orbax checkpoints of a run folder: atomic saves, resume from the latest complete one.
 
-import dataclasses
-import json
+Run folders themselves (run.json, `load_run`) are `msnerf_jax.runs`.
+"""
+
 import os
-from typing import Any, Dict, Optional
+from typing import Any, Optional
 
-import numpy as np
 import orbax.checkpoint as ocp
 
-from msnerf_jax import config as config_lib
-from msnerf_jax.data.images import atomic_write_bytes
 from msnerf_jax.errors import UserError
 
-RUN_FILE = "run.json"
 CHECKPOINT_DIR = "checkpoints"
-
-
-# The command that makes a run of each kind (named when another kind is given).
-TRAIN_COMMANDS = {"nerf": "msnerf nerf train", "adain": "msnerf adain train",
-                  "multistyle": "msnerf multistyle train"}
-
-
-def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
-  """The parsed run.json of a run folder ({"kind", "config", ...}); with `kind`, a UserError
-  unless the run is of that kind."""
-  if not os.path.exists(run_dir):
-    raise UserError(f"{run_dir}: no such run folder")
-  if not os.path.isdir(run_dir):
-    raise UserError(f"{run_dir}: is a file, expected a run folder")
-  path = os.path.join(run_dir, RUN_FILE)
-  if not os.path.exists(path):
-    raise UserError(f"{path}: missing; {run_dir} is not a msnerf run folder")
-  try:
-    with open(path) as f:
-      run = json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e})") from None
-  if not isinstance(run, dict) or "kind" not in run or "config" not in run:
-    raise UserError(f"{path}: missing 'kind' or 'config'")
-  if kind is not None and run["kind"] != kind:
-    raise UserError(f"{path}: a {run['kind']!r} run, not a {kind!r} run (train one with "
-                    f"`{TRAIN_COMMANDS.get(kind, 'msnerf')}`)")
-  return run
-
-
-def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
-  """Creates a run folder or checks that an existing one was made with the same settings.
-
-  Args:
-    run_dir: the folder.
-    kind: "nerf", "adain", "multistyle".
-    run: JSON-able dict with at least "config"; saved as run.json together with `kind`.
-  Returns:
-    True when the folder already held this run (training resumes), False when new.
-  Raises:
-    UserError when the path is a file, or the folder holds a run of another kind or config
-    (its checkpoints are never touched then).
-  """
-  record = {"kind": kind, **run}
-  if os.path.exists(run_dir) and not os.path.isdir(run_dir):
-    raise UserError(f"{run_dir}: is a file, expected a run folder")
-  path = os.path.join(run_dir, RUN_FILE)
-  if os.path.exists(path):
-    saved = read_run_file(run_dir)
-    if saved.get("kind") != kind:
-      raise UserError(f"{run_dir}: holds a {saved.get('kind')!r} run, not {kind!r}; "
-                      "choose another --out")
-    # A run.json written before a config field existed holds that field's default.
-    saved["config"] = config_lib.to_dict(config_lib.from_dict(
-        config_lib.config_class(kind), saved["config"], path))
-    # Compare what defines the run; "steps" may grow to train longer.
-    mismatch = config_lib.diff(_defining(saved), _defining(record))
-    if mismatch:
-      raise UserError(f"{run_dir}: was made with another config ({mismatch}); "
-                      "use another --out, or the same options to resume")
-    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
-    return True
-  if os.path.isdir(run_dir) and os.listdir(run_dir):
-    if os.path.exists(os.path.join(run_dir, CHECKPOINT_DIR)):
-      raise UserError(f"{run_dir}: has checkpoints but no {RUN_FILE}; refusing to overwrite")
-  try:
-    os.makedirs(run_dir, exist_ok=True)
-    atomic_write_bytes(path, json.dumps(record, indent=2, sort_keys=True).encode())
-  except PermissionError:
-    raise UserError(f"{run_dir}: not writable") from None
-  except OSError as e:
-    raise UserError(f"{run_dir}: cannot create run folder ({e.strerror})") from None
-  return False
-
-
-def _defining(record: Dict[str, Any]) -> Dict[str, Any]:
-  record = json.loads(json.dumps(record))  # deep copy, tuples -> lists
-  record.get("config", {}).pop("steps", None)
-  record.pop("summary", None)
-  return record
 
 
 class Checkpoints:
@@ -135,93 +52,3 @@ class Checkpoints:
 
   def close(self) -> None:
     self._manager.close()
-
-
-@dataclasses.dataclass(frozen=True)
-class Run:
-  """A saved run: its kind, config (frozen dataclass), params pytree and step."""
-  run_dir: str
-  kind: str
-  config: Any
-  params: Any
-  step: int
-  record: Dict[str, Any]
-
-
-def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
-  """Loads a run folder: config from run.json and params of its latest checkpoint; with
-  `kind`, refuses a run of another kind before reading any checkpoint.
-
-  Returns:
-    `Run` with `.config`, `.params` (nested dict of numpy arrays) and `.step`.
-  """
-  record = read_run_file(run_dir, kind)
-  kind = record["kind"]
-  config = config_lib.from_dict(config_lib.config_class(kind), record["config"],
-                                os.path.join(run_dir, RUN_FILE))
-  checkpoints = Checkpoints(run_dir)
-  try:
-    step = checkpoints.latest_step()
-    if step is None:
-      raise UserError(f"{run_dir}: no checkpoint yet (train first)")
-    restored = checkpoints.restore()
-  finally:
-    checkpoints.close()
-  params = _to_numpy(restored["params"])
-  check_params(params, _expected_params(kind, config),
-               os.path.join(run_dir, CHECKPOINT_DIR, str(step)))
-  return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
-             record=record)
-
-
-def scene_of(run: Run):
-  """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
-  style of a stylized dataset (run.json's "style"), that style's views are its images."""
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.data.scene import load_scene
-  from msnerf_jax.data.stylized import style_views
-  source = os.path.join(run.run_dir, RUN_FILE)
-  if "data" not in run.record:
-    raise UserError(f"{source}: a {run.kind!r} run has no scene")
-  scene, data = load_scene(config_lib.from_dict(config_lib.DataConfig, run.record["data"], source))
-  style = run.record.get("style")
-  if style is not None:
-    if not isinstance(style, dict) or not {"stylized", "name"} <= set(style):
-      raise UserError(f"{source}: 'style' needs 'stylized' and 'name'")
-    scene = style_views(style["stylized"], style["name"], scene)
-  return scene, data
-
-
-def _expected_params(kind: str, config: Any):
-  """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
-  # pylint: disable=g-import-not-at-top
-  import jax
-  if kind == "nerf":
-    from msnerf_jax.models.nerf import init_nerf_params
-    return jax.eval_shape(lambda: init_nerf_params(config, jax.random.PRNGKey(0)))
-  if kind == "multistyle":
-    from msnerf_jax.models.multistyle import init_multistyle_params
-    return jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(0)))
-  return None
-
-
-def check_params(params: Any, expected: Any, where: str) -> None:
-  """UserError naming `where` unless params have the tree and shapes of `expected`."""
-  import jax  # pylint: disable=g-import-not-at-top
-  if expected is None:
-    return
-  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(params):
-    raise UserError(f"{where}: parameters of another architecture than its run.json says")
-  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
-                               jax.tree_util.tree_leaves(params)):
-    if tuple(want.shape) != tuple(np.shape(got)):
-      raise UserError(f"{where}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
-                      f"its config expects {tuple(want.shape)} (another architecture)")
-
-
-def _to_numpy(tree):
-  if isinstance(tree, dict):
-    return {k: _to_numpy(v) for k, v in tree.items()}
-  if isinstance(tree, (list, tuple)):
-    return type(tree)(_to_numpy(v) for v in tree)
-  return np.asarray(tree)

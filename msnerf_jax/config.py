@@ -15,7 +15,6 @@ class DataConfig:
   format: str = "auto"  # "auto", "blender" or "llff".
   downscale: int = 0  # 0 = format default (Blender 1, LLFF 8). LLFF: reads images_{factor}.
   llff_holdout: int = 8  # LLFF: every n-th image is held out for val/test.
-  llff_spherify: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

@@ -25,11 +25,11 @@ from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax import video
-from msnerf_jax.checkpoint import load_run, scene_of
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
+from msnerf_jax.runs import load_run, scene_of
 from msnerf_jax.train import multistyle
 from msnerf_jax.train import nerf as nerf_lib
 

@@ -23,7 +23,7 @@ import json
 import os
 import shutil
 import time
-from typing import Any, Callable, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, Optional, Sequence
 
 import numpy as np
 
@@ -69,19 +69,14 @@ def _load_record(out: str) -> Dict[str, Any]:
   path = os.path.join(out, RECORD)
   if not os.path.exists(path):
     return {"stages": {}}
-  try:
-    with open(path) as f:
-      record = json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e}); delete it to re-check every stage") from None
+  record = images_lib.read_json(path, "; delete it to re-check every stage")
   if not isinstance(record, dict) or not isinstance(record.get("stages"), dict):
     raise UserError(f"{path}: not a pipeline record; delete it to re-check every stage")
   return record
 
 
 def _save_record(out: str, record: Dict[str, Any]) -> None:
-  images_lib.atomic_write_bytes(os.path.join(out, RECORD),
-                                json.dumps(record, indent=2, sort_keys=True).encode())
+  images_lib.write_json(os.path.join(out, RECORD), record)
 
 
 class _Scene:
@@ -163,13 +158,10 @@ def _stylized_done(folder: str, names: Sequence[str]) -> bool:
 
 
 def _run_stylized(out, data, decoder, styles, s: Settings, progress):
-  # The `msnerf stylize-scene` verb itself, through its parser (so its defaults apply).
-  from msnerf_jax import cli  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
   folder = os.path.join(out, "stylized")
-  args = cli.build_parser().parse_args(
-      ["stylize-scene", "--data", data, "--decoder", decoder, "--styles", *styles,
-       "--include-original", "--downscale", str(s.downscale), "--out", folder])
-  args.func(args)
+  stylize.stylize_scene_folder(data, decoder, styles, folder, include_original=True,
+                               downscale=s.downscale, progress=progress)
   return [folder]
 
 
@@ -192,33 +184,20 @@ def _run_multistyle(out, s: Settings, progress):
 RENDER_FILES = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
 
 
-def morph_vectors(vectors: Sequence[np.ndarray], n: int) -> List[np.ndarray]:
-  """n style vectors moving through `vectors` in a loop (v0 -> v1 -> ... -> v0)."""
-  from msnerf_jax.cli.multistyle import blend  # pylint: disable=g-import-not-at-top
-  k = len(vectors)
-  out = []
-  for i in range(n):
-    u = i * k / n
-    j = int(np.floor(u))
-    out.append(blend(vectors[j % k], vectors[(j + 1) % k], u - j))
-  return out
-
-
 def _run_renders(out, s: Settings, progress):
   # pylint: disable=g-import-not-at-top
   from tqdm.auto import tqdm
+  from msnerf_jax import style_videos
+  from msnerf_jax import styles as styles_lib
   from msnerf_jax import video
-  from msnerf_jax.cli.common import path_poses
-  from msnerf_jax.cli.multistyle import load_multistyle
+  from msnerf_jax.runs import load_run_and_scene
   from msnerf_jax.train import multistyle
-  run, scene = load_multistyle(os.path.join(out, "multistyle"))
+  run, scene = load_run_and_scene(os.path.join(out, "multistyle"), "multistyle")
   vectors = multistyle.style_vectors(run)
   names = list(vectors)
-  poses = path_poses(scene, s.frames)
-  chunk = s.chunk or None
+  poses = scene.path_poses(s.frames)
   folder = os.path.join(out, "renders")
-  render = lambda c2w, styles: multistyle.render_styles(scene, run.params, run.config, c2w,
-                                                        np.stack(styles), chunk)["rgb"]
+  render = style_videos.style_renderer(run, scene, s.chunk or None)
   # All styles at once per camera (one trunk pass): the side-by-side video and the grid.
   sweeps = [render(c2w, list(vectors.values()))
             for c2w in tqdm(poses, desc="render styles", disable=not progress)]
@@ -226,8 +205,8 @@ def _run_renders(out, s: Settings, progress):
   tiles = [np.concatenate([x for m in range(len(names)) for x in ([gap] if m else []) + [sw[m]]], 1)
            for sw in sweeps]
   written = video.write_videos(os.path.join(folder, "styles"), tiles, s.fps)
-  morph_names = [n for n in names if n != "original"] or names
-  path = morph_vectors([vectors[n] for n in morph_names], len(poses))
+  morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
+  path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
   frames = [render(c2w, [v])[0] for c2w, v in tqdm(list(zip(poses, path)), desc="render morph",
                                                      disable=not progress)]
   written += video.write_videos(os.path.join(folder, "morph"), frames, s.fps)

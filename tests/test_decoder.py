@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint
+from msnerf_jax import runs
 from msnerf_jax import config as config_lib
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder
@@ -101,7 +101,7 @@ def test_train_writes_checkpoints_samples_and_resumes(tmp_path, folders):
   assert grid.shape == (2 * 32 + 4, 3 * 32 + 8, 3)
   held = open(os.path.join(run, "holdout.txt")).read().split()
   assert [os.path.basename(p) for p in held] == ["img2.png"]
-  loaded = checkpoint.load_run(run)
+  loaded = runs.load_run(run)
   assert loaded.kind == "adain" and loaded.step == 2
   assert loaded.config == TINY
   before = loaded.params["params"]
@@ -109,14 +109,14 @@ def test_train_writes_checkpoints_samples_and_resumes(tmp_path, folders):
   longer = config_lib.AdainConfig(**{**config_lib.to_dict(TINY), "steps": 3})
   result = train_adain.train(longer, [content], styles, run, progress=False, log=lambda *_: None)
   assert result.step == 3
-  after = checkpoint.load_run(run)
+  after = runs.load_run(run)
   assert after.step == 3
   assert not np.allclose(before["conv0"]["Conv_0"]["kernel"], after.params["params"]["conv0"]["Conv_0"]["kernel"])
   # Another config in the same folder is refused, checkpoints untouched.
   with pytest.raises(UserError, match="another config"):
     train_adain.train(config_lib.AdainConfig(**{**config_lib.to_dict(TINY), "size": 24}),
                       [content], styles, run, progress=False, log=lambda *_: None)
-  assert checkpoint.load_run(run).step == 3
+  assert runs.load_run(run).step == 3
 
 
 def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, folders, monkeypatch):
@@ -137,7 +137,7 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, folders, monkey
   longer = config_lib.AdainConfig(**{**config_lib.to_dict(TINY), "steps": 4})
   with pytest.raises(UserError, match=r"step 3: loss is nan.*last good checkpoint: step 2"):
     train_adain.train(longer, [content], styles, run, progress=False, log=lambda *_: None)
-  assert checkpoint.load_run(run).step == 2
+  assert runs.load_run(run).step == 2
 
 
 def test_training_reduces_loss():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli, load_run
+from msnerf_jax import checkpoint, cli, load_run, runs
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
@@ -252,7 +252,7 @@ def test_trunk_is_frozen_and_heads_train(world, trained):
 
 
 def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
-  from msnerf_jax.cli.multistyle import blend  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.styles import blend  # pylint: disable=g-import-not-at-top
   run, scene = load_run(trained), world["scene"]
   vectors = multistyle.style_vectors(run)
   a, b = vectors["red"], vectors["blue"]
@@ -511,7 +511,7 @@ def single_red(world):
 
 def test_single_style_nerf_trains_on_the_style_views(world, single_red):
   run = load_run(single_red)
-  scene, _ = checkpoint.scene_of(run)
+  scene, _ = runs.scene_of(run)
   assert run.kind == "nerf" and run.record["style"]["name"] == "red"
   for i in (0, 5):
     view = np.asarray(Image.open(os.path.join(world["stylized"], "red", f"{i:04d}.png")))

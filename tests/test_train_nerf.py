@@ -72,7 +72,7 @@ def test_run_dir_of_another_config_is_refused_and_kept(tiny_blender, tmp_path):
 
 
 def test_run_json_from_before_a_config_field_existed_resumes(tmp_path):
-  from msnerf_jax import checkpoint, config as config_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import config as config_lib, runs as checkpoint  # pylint: disable=g-import-not-at-top
   import json  # pylint: disable=g-import-not-at-top
   run = str(tmp_path / "run")
   full = config_lib.to_dict(config_lib.MultistyleConfig(steps=5))

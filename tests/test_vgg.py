@@ -66,7 +66,10 @@ def test_style_layers_shapes_and_normalisation_inside(params):
   x = jax.random.uniform(jax.random.PRNGKey(1), (1, 24, 40, 3))
   out = jax.jit(vgg.VGGEncoder().apply)(params, x)
   assert set(out) == set(vgg.STYLE_LAYERS)
-  for name, shape in vgg.output_shapes(24, 40).items():
+  # Each style layer halves the size of the one before: (h, w, c) for a 24 x 40 input.
+  shapes = {name: (24 // 2**i, 40 // 2**i, vgg.LAYER_CHANNELS[name])
+            for i, name in enumerate(vgg.STYLE_LAYERS)}
+  for name, shape in shapes.items():
     assert out[name].shape == (1,) + shape
   raw = jax.jit(vgg.VGGEncoder(normalize=False).apply)(params, vgg.normalize_imagenet(x))
   np.testing.assert_allclose(out["relu4_1"], raw["relu4_1"], atol=1e-5)

@@ -10,12 +10,8 @@ def print_summary(title, items):
 
 
 def path_poses(scene, frames: int):
-  """The scene's render path, resampled to `frames` cameras (0 = all of them)."""
-  import numpy as np  # pylint: disable=g-import-not-at-top
-  poses = scene.render_poses
-  if frames > 0:
-    poses = poses[np.linspace(0, len(poses) - 1, frames).round().astype(int)]
-  return poses
+  """The scene's render path, resampled to `frames` cameras (0 = all): `Scene.path_poses`."""
+  return scene.path_poses(frames)
 
 
 def output_stem(path: str) -> str:
@@ -25,11 +21,9 @@ def output_stem(path: str) -> str:
 
 
 def load_run_and_scene(run_dir: str, kind: str):
-  """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.checkpoint import load_run, scene_of
-  run = load_run(run_dir, kind)
-  return run, scene_of(run)[0]
+  """(run, scene) of a run folder of the given kind: `runs.load_run_and_scene`."""
+  from msnerf_jax import runs  # pylint: disable=g-import-not-at-top
+  return runs.load_run_and_scene(run_dir, kind)
 
 
 def print_training_summary(title: str, summary, what: str, next_hint: str) -> None:

@@ -4,10 +4,8 @@ import json
 import os
 import time
 
-import numpy as np
-
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
+from msnerf_jax.cli.common import (load_run_and_scene, output_stem, print_summary,
                                    print_training_summary)
 from msnerf_jax.errors import UserError
 
@@ -39,7 +37,7 @@ def register(commands, formatter):
   p.add_argument("--scene-stats", action="store_true",
                  help="normalise every view by the VGG statistics of all training views instead "
                       "of its own: one colour map for the whole scene, so the views agree more "
-                      "(METHOD.md's per-view AdaIN without it)")
+                      "(docs/method.md's per-view AdaIN without it)")
   p.add_argument("--out", required=True, help="dataset folder")
   p.set_defaults(func=cmd_stylize_scene)
 
@@ -148,26 +146,12 @@ def register(commands, formatter):
 
 
 def cmd_stylize_scene(args):
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax import stylize as stylize_lib
-  from msnerf_jax.data import stylized as stylized_lib
-  from msnerf_jax.data.scene import load_scene
-  from msnerf_jax.models import vgg
-  alphas = args.alphas if args.alphas is not None else [1.0] * len(args.styles)
-  decoder = stylize_lib.load_decoder(args.decoder)
-  scene, data = load_scene(config_lib.DataConfig(path=os.path.abspath(args.data),
-                                                 downscale=args.downscale))
-  encoder = vgg.load_vgg_params()
+  from msnerf_jax import stylize as stylize_lib  # pylint: disable=g-import-not-at-top
   t0 = time.time()
-  summary = stylized_lib.stylize_scene(
-      scene, data,
-      lambda view, style, alpha, scale, stats: stylize_lib.stylize_image(
-          decoder, encoder, view, [style], alpha=alpha, scale=scale, content_stats=stats),
-      lambda image: stylized_lib.style_vector_of(encoder, image),
-      args.styles, alphas, args.include_original, args.out,
-      decoder=args.decoder, stylize_scale=args.stylize_scale,
-      content_stats_fn=(lambda views, scale: stylize_lib.scene_content_stats(
-          encoder, views, scale, progress=True)) if args.scene_stats else None)
+  summary, scene = stylize_lib.stylize_scene_folder(
+      args.data, args.decoder, args.styles, args.out, alphas=args.alphas,
+      include_original=args.include_original, downscale=args.downscale,
+      stylize_scale=args.stylize_scale, scene_stats=args.scene_stats)
   print_summary("stylized dataset done", [
       ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
       ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),
@@ -204,18 +188,13 @@ def cmd_train(args):
                          f"{args.out} --out {os.path.join(args.out, 'video')}")
 
 
-def load_multistyle(run_dir):
-  """(run, scene) of a multistyle run folder."""
-  return load_run_and_scene(run_dir, "multistyle")
-
-
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import video
   from msnerf_jax.data.images import atomic_write_bytes
   from msnerf_jax.data.stylized import load_stylized
   from msnerf_jax.train import multistyle
-  run, scene = load_multistyle(args.run)
+  run, scene = load_run_and_scene(args.run, "multistyle")
   stylized = load_stylized(run.record["stylized"])
   if list(stylized.names) != list(run.record["styles"]):
     raise UserError(f"{run.record['stylized']}: styles {stylized.names} differ from the run's "
@@ -242,80 +221,28 @@ def cmd_eval(args):
       ("figure", figure)])
 
 
-def resolve_style(spec: str, vectors, encoder_cache) -> np.ndarray:
-  """A style vector [1024] from a training style's name or an image file."""
-  if spec in vectors:
-    return vectors[spec]
-  if os.path.isfile(spec):
-    # pylint: disable=g-import-not-at-top
-    from msnerf_jax.data import images as images_lib
-    from msnerf_jax.data.stylized import style_vector_of
-    from msnerf_jax.models import vgg
-    if "encoder" not in encoder_cache:
-      encoder_cache["encoder"] = vgg.load_vgg_params()
-    image = images_lib.read_image(spec, max_side=1024)
-    if min(image.shape[:2]) < 16:
-      raise UserError(f"{spec}: style image is {image.shape[1]}x{image.shape[0]}, need at least "
-                      "16x16")
-    return style_vector_of(encoder_cache["encoder"], image)
-  raise UserError(f"style {spec!r}: neither a training style ({', '.join(vectors)}) nor an "
-                  "image file")
-
-
-def blend(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-  """(1 - t) a + t b: t = 0 gives a and t = 1 gives b exactly."""
-  return ((1.0 - t) * np.asarray(a, np.float32) + t * np.asarray(b, np.float32)).astype(np.float32)
-
-
 def cmd_render(args):
   # pylint: disable=g-import-not-at-top
-  from tqdm.auto import tqdm
-  from msnerf_jax import video
-  from msnerf_jax.checkpoint import read_run_file
+  from msnerf_jax import style_videos
+  from msnerf_jax import styles as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
+  from msnerf_jax.runs import read_run_file
   from msnerf_jax.train import multistyle
   if read_run_file(args.run)["kind"] == "nerf":
     return nerf_cli.cmd_render(args)
-  for name, value in (("--t", args.t), ("--strength", args.strength)):
-    if value is not None and not 0.0 <= value <= 1.0:
-      raise UserError(f"{name} {value}: must be in [0, 1]")
-  run, scene = load_multistyle(args.run)
+  styles_lib.check_unit("--t", args.t)
+  styles_lib.check_unit("--strength", args.strength)
+  run, scene = load_run_and_scene(args.run, "multistyle")
   vectors = multistyle.style_vectors(run)
-  names = list(vectors)
   cache = {}
-  if args.interp:
-    main = blend(resolve_style(args.interp[0], vectors, cache),
-                 resolve_style(args.interp[1], vectors, cache), args.t)
-    label = f"{args.interp[0]} -> {args.interp[1]} at t={args.t:g}"
-  else:
-    main = resolve_style(args.style or names[0], vectors, cache)
-    label = args.style or names[0]
-  if args.strength is not None:
-    if "original" not in vectors:
-      raise UserError(f"--strength: {args.run} has no 'original' style (make the dataset with "
-                      "--include-original)")
-    main = blend(vectors["original"], main, args.strength)
-    label += f" at strength {args.strength:g}"
-  morph = args.morph or (names[:2] if len(names) >= 2 else None)
-  ends = [resolve_style(s, vectors, cache) for s in morph] if morph else None
-  poses = path_poses(scene, args.frames)
-  stem = output_stem(args.out)
-  render = lambda c2w, styles: multistyle.render_styles(scene, run.params, run.config, c2w,
-                                                        np.stack(styles), args.chunk)["rgb"]
+  main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
+                                             args.t, args.strength)
+  morph, ends = styles_lib.morph_ends(vectors, cache, args.morph)
+  poses = scene.path_poses(args.frames)
   t0 = time.time()
-  frames = [render(c2w, [main])[0] for c2w in tqdm(poses, desc="style video")]
-  written = video.write_videos(stem, frames, args.fps)
-  if ends is not None:
-    ts = np.linspace(0.0, 1.0, len(poses))
-    frames = [render(c2w, [blend(ends[0], ends[1], t)])[0]
-              for c2w, t in tqdm(list(zip(poses, ts)), desc="morph video")]
-    written += video.write_videos(stem + "_morph", frames, args.fps)
-    steps = np.linspace(0.0, 1.0, max(2, args.grid_steps))
-    views = poses[np.linspace(0, len(poses) - 1, max(1, args.grid_views) + 1)[:-1]
-                  .round().astype(int)]
-    rows = [list(render(c2w, [blend(ends[0], ends[1], t) for t in steps]))  # one sweep per view
-            for c2w in tqdm(views, desc="grid")]
-    written.append(video.write_grid(stem + "_grid.png", rows))
+  written = style_videos.write_render_videos(
+      style_videos.style_renderer(run, scene, args.chunk), poses, main, ends,
+      output_stem(args.out), args.fps, args.grid_steps, args.grid_views)
   seconds = time.time() - t0
   print_summary("multi-style render done", [
       ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),

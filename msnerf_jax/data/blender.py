@@ -1,6 +1,5 @@
 """Blender synthetic scenes (NeRF format): transforms_{train,val,test}.json + RGBA PNGs."""
 
-import json
 import os
 
 import numpy as np
@@ -15,11 +14,7 @@ NEAR, FAR = 2.0, 6.0
 
 
 def _read_transforms(path: str):
-  try:
-    with open(path) as f:
-      meta = json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e})") from None
+  meta = images_lib.read_json(path)
   if not isinstance(meta, dict):
     raise UserError(f"{path}: expected a JSON object")
   for key in ("camera_angle_x", "frames"):

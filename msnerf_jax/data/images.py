@@ -1,9 +1,10 @@
 """Robust image reading and writing: any common format, mode and bit depth in, float32 RGB out."""
 
+import numbers
 import os
 import tempfile
 import warnings
-from typing import List, Optional, Sequence
+from typing import Any, List, Optional, Sequence
 
 import numpy as np
 from PIL import Image
@@ -148,6 +149,12 @@ def resize(image: np.ndarray, height: int, width: int) -> np.ndarray:
   return np.clip(np.stack(channels, axis=-1), 0.0, 1.0).astype(np.float32)
 
 
+def check_scale(scale: int, what: str = "--stylize-scale") -> None:
+  """UserError unless `scale` (stylize_image's) is a whole number >= 1; `what` names its source."""
+  if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
+    raise UserError(f"{what} {scale!r}: must be a whole number >= 1")
+
+
 def atomic_write_bytes(path: str, data: bytes) -> None:
   """Writes `data` to `path` through a temporary file and a rename: never a partial file."""
   folder = os.path.dirname(os.path.abspath(path))
@@ -187,6 +194,23 @@ def stack_same_size(images: Sequence[np.ndarray], paths: Sequence[str]) -> np.nd
           f"{path}: image is {image.shape[1]}x{image.shape[0]}, expected {shape[1]}x{shape[0]} "
           f"like {paths[0]} (all views of a scene must have one size)")
   return np.stack(images)
+
+
+def read_json(path: str, hint: str = "") -> Any:
+  """The parsed JSON file at `path`; UserError naming it when it is not JSON (`hint` is added
+  to the message). A missing file raises FileNotFoundError."""
+  import json  # pylint: disable=g-import-not-at-top
+  try:
+    with open(path) as f:
+      return json.load(f)
+  except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    raise UserError(f"{path}: malformed JSON ({e}){hint}") from None
+
+
+def write_json(path: str, value: Any) -> None:
+  """Saves a JSON-able value atomically, indented, keys sorted."""
+  import json  # pylint: disable=g-import-not-at-top
+  atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
 
 
 def write_npy(path: str, array: np.ndarray) -> None:

@@ -73,14 +73,11 @@ def _image_folder(path: str, factor: int):
   return os.path.join(path, name), factor // k
 
 
-def load_llff(path: str, factor: int = 8, holdout: int = 8, spherify: bool = False,
-              bd_factor: float = 0.75) -> Scene:
+def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0.75) -> Scene:
   """Loads an LLFF scene as the reference code does (recentred, bounds scaled, NDC rays).
 
   Every `holdout`-th image is held out as the val and test split.
   """
-  if spherify:
-    raise UserError("--llff-spherify: 360-degree LLFF scenes are not supported yet")
   pb_path = os.path.join(path, "poses_bounds.npy")
   try:
     poses_bounds = np.load(pb_path, allow_pickle=False)

@@ -2,7 +2,7 @@
 
 import dataclasses
 import os
-from typing import Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -50,6 +50,13 @@ class Scene:
       raise UserError(f"scene has no {name!r} split (has: {', '.join(sorted(self.splits))})")
     return self.splits[name]
 
+  def path_poses(self, frames: int = 0) -> np.ndarray:
+    """The render path resampled to `frames` evenly spaced cameras [frames, 3, 4] (0 = all)."""
+    poses = self.render_poses
+    if frames > 0:
+      poses = poses[np.linspace(0, len(poses) - 1, frames).round().astype(int)]
+    return poses
+
   def camera_rays(self, c2w: np.ndarray) -> Dict[str, jnp.ndarray]:
     """ray_bundle for every pixel of one camera: [H, W, ...]."""
     origins, directions = rays_lib.get_rays(self.height, self.width, self.K, c2w)
@@ -59,6 +66,25 @@ class Scene:
     """ray_bundle with this scene's bounds and NDC setting."""
     return rays_lib.ray_bundle(origins, directions, self.near, self.far, self.ndc,
                                self.height, self.width, self.focal)
+
+
+# DataConfig keys that run.json files and stylized manifests of earlier versions may hold,
+# with the only value they could have had (anything else never loaded a scene).
+LEGACY_DATA_KEYS = {"llff_spherify": False}
+
+
+def drop_legacy_data_keys(values: Dict[str, Any], source: str) -> Dict[str, Any]:
+  """Removes LEGACY_DATA_KEYS from a saved DataConfig dict (in place; also returned).
+
+  Raises:
+    UserError naming `source` when a legacy key holds a value no version could load.
+  """
+  for key, value in LEGACY_DATA_KEYS.items():
+    if key in values:
+      if values[key] != value:
+        raise UserError(f"{source}: {key} {values[key]!r} is not supported")
+      del values[key]
+  return values
 
 
 def detect_format(path: str) -> str:
@@ -89,7 +115,7 @@ def load_scene(config: DataConfig) -> Tuple[Scene, DataConfig]:
     scene = blender.load_blender(config.path, downscale)
   elif fmt == "llff":
     downscale = config.downscale or 8
-    scene = llff.load_llff(config.path, downscale, config.llff_holdout, config.llff_spherify)
+    scene = llff.load_llff(config.path, downscale, config.llff_holdout)
   else:
     raise UserError(f"--format {fmt}: unknown scene format (blender or llff)")
   return scene, dataclasses.replace(config, format=fmt, downscale=downscale)

@@ -15,7 +15,6 @@ its views exist, so an interrupted `stylize-scene` continues where it stopped.
 """
 
 import dataclasses
-import json
 import os
 import re
 from typing import Any, Dict, List, Optional, Sequence
@@ -25,9 +24,8 @@ from tqdm.auto import tqdm
 
 from msnerf_jax import config as config_lib
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data.scene import Scene
+from msnerf_jax.data.scene import Scene, drop_legacy_data_keys
 from msnerf_jax.errors import UserError
-from msnerf_jax.stylize import check_scale
 
 MANIFEST = "manifest.json"
 POSES = "poses.npy"
@@ -45,10 +43,6 @@ def style_name(path: str, alpha: float = 1.0) -> str:
 
 def view_file(out_dir: str, name: str, index: int) -> str:
   return os.path.join(out_dir, name, f"{index:04d}.png")
-
-
-def _write_json(path: str, value: Any) -> None:
-  images_lib.atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
 
 
 def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
@@ -73,7 +67,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     content_stats_fn(views, scale) -> (mean, std) [1, C]: with it, every view is normalised
       by the content statistics of the training views (stylize.scene_content_stats), saved
       as content_stats.npy so that a resumed run uses the same; without it, each view by its
-      own (per-view AdaIN, as in METHOD.md).
+      own (per-view AdaIN, as in docs/method.md).
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
@@ -82,7 +76,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   for a in alphas:
     if not 0.0 <= a <= 1.0:
       raise UserError(f"--alphas {a}: must be in [0, 1]")
-  check_scale(stylize_scale)
+  images_lib.check_scale(stylize_scale)
   styles = [{"name": style_name(p, a), "source": os.path.abspath(p), "alpha": float(a)}
             for p, a in zip(style_paths, alphas)]
   if include_original:
@@ -119,7 +113,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   try:
     os.makedirs(out_dir, exist_ok=True)
     images_lib.write_npy(os.path.join(out_dir, POSES), scene.c2w)
-    _write_json(path, manifest)
+    images_lib.write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
 
@@ -160,7 +154,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       images_lib.write_image(target, view)
       written += 1
     manifest["done"].append(name)
-    _write_json(path, manifest)
+    images_lib.write_json(path, manifest)
   return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
 
 
@@ -169,17 +163,16 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   if not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: no such stylized dataset folder")
   try:
-    with open(path) as f:
-      manifest = json.load(f)
+    manifest = images_lib.read_json(path)
   except FileNotFoundError:
     raise UserError(f"{path}: missing; make the dataset with `msnerf stylize-scene`") from None
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
-    raise UserError(f"{path}: malformed JSON ({e})") from None
   required = ("data", "height", "width", "n_views", "splits", "styles", "done")
   if not isinstance(manifest, dict) or any(k not in manifest for k in required):
     raise UserError(f"{path}: missing keys (needs {', '.join(required)})")
+  if isinstance(manifest["data"], dict):
+    drop_legacy_data_keys(manifest["data"], path)
   # Datasets made before the option existed were stylized at scale 1.
-  check_scale(manifest.setdefault("stylize_scale", 1), f"{path}: stylize_scale")
+  images_lib.check_scale(manifest.setdefault("stylize_scale", 1), f"{path}: stylize_scale")
   kind = manifest.setdefault("content_stats", "view")
   if kind not in CONTENT_STATS_KINDS:
     raise UserError(f"{path}: content_stats is {kind!r}, expected one of "

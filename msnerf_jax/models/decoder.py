@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 UPSAMPLE_MODES = ("nearest", "bilinear")
-# Output channels of the convs; "U" is a x2 upsampling (METHOD.md "Decoder").
+# Output channels of the convs; "U" is a x2 upsampling (docs/method.md "Decoder").
 DECODER_LAYOUT = (256, "U", 256, 256, 256, 128, "U", 128, 64, "U", 64, 3)
 
 

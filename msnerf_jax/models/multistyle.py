@@ -1,6 +1,6 @@
 """The multi-style NeRF MLP: a frozen NeRF `trunk` with style-conditioned colour (and density) heads.
 
-METHOD.md "Multi-style NeRF details": a style MLP (1024 -> 1024 -> 512 -> W/2) maps the style
+docs/method.md "Multi-style heads": a style MLP (1024 -> 1024 -> 512 -> W/2) maps the style
 vector to a code that is concatenated with the trunk's view features and fed to a new rgb MLP
 (W -> W/2 -> 3). The density-aware variant adds a style-to-density MLP (-> W) whose output,
 concatenated with the trunk's last point layer, feeds a new density MLP (2W -> W -> 1).
@@ -17,6 +17,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from msnerf_jax.encoding import encoded_size
 from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
 
 
@@ -87,8 +88,8 @@ class MultiStyleMLP(nn.Module):
     self.rgb_extra = [nn.Dense(w // 2, name=f"rgb_extra_{i}") for i in range(self.rgb_extra_layers)]
     self.rgb_out = nn.Dense(3)
     if self.density_aware:
-      hidden_dim = w + (self.trunk.pos_freqs * 6 + 3 if self.trunk.skip_layer == self.trunk.depth - 1
-                        else 0)
+      hidden_dim = w + (encoded_size(3, self.trunk.pos_freqs)
+                        if self.trunk.skip_layer == self.trunk.depth - 1 else 0)
       self.style_density = StyleMLP((*self.style_hidden, w), self.normalize_styles)
       self.density_hidden = ConcatDense(w, hidden_dim, w)
       self.density_extra = [nn.Dense(w, name=f"density_extra_{i}")

@@ -3,7 +3,7 @@
 import importlib.util
 import os
 import pickle
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Dict, Optional
 
 import chex
 import flax.linen as nn
@@ -126,9 +126,3 @@ def load_vgg_params(path: Optional[str] = None, num_convs: int = NUM_CONVS) -> D
       raise UserError(f"{path}: missing VGG16_0/{name}")
     params[name] = {k: np.asarray(vgg[name][k], np.float32) for k in ("kernel", "bias")}
   return {"params": params}
-
-
-def output_shapes(height: int, width: int) -> Dict[str, Tuple[int, int, int]]:
-  """(h, w, c) of each style layer for an input of height x width."""
-  return {name: (height // 2**i, width // 2**i, LAYER_CHANNELS[name])
-          for i, name in enumerate(STYLE_LAYERS)}

@@ -17,6 +17,7 @@ import optax
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import checkpoint as checkpoint_lib
+from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
@@ -253,7 +254,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   content_pools = [[load_for_crops(p, config.resize, config.size) for p in g] for g in groups]
   style_pools = [[load_for_crops(p, config.resize, config.size) for p in style_paths]]
 
-  resumed = checkpoint_lib.prepare_run_dir(run_dir, KIND, record)
+  resumed = runs_lib.prepare_run_dir(run_dir, KIND, record)
   images_lib.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
                                 "".join(p + "\n" for p in record["holdout"]).encode())
   optimizer = make_optimizer(config)
@@ -345,8 +346,6 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
 
 
 def _write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
-  import json  # pylint: disable=g-import-not-at-top
-  record = checkpoint_lib.read_run_file(run_dir)
+  record = runs_lib.read_run_file(run_dir)
   record["summary"] = summary
-  images_lib.atomic_write_bytes(os.path.join(run_dir, checkpoint_lib.RUN_FILE),
-                                json.dumps(record, indent=2, sort_keys=True).encode())
+  images_lib.write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)

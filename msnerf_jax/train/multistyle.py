@@ -13,7 +13,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from msnerf_jax import adain as adain_lib
-from msnerf_jax import checkpoint as ckpt_lib
+from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import render as render_lib
@@ -217,11 +217,11 @@ def check_style_loss(config: MultistyleConfig, scene: Scene, n_devices: int) -> 
 # ----------------------------------------------------------------------------- inputs
 
 
-def load_nerf_run(nerf_run_dir: str) -> Tuple[ckpt_lib.Run, Scene, config_lib.DataConfig]:
+def load_nerf_run(nerf_run_dir: str) -> Tuple[runs_lib.Run, Scene, config_lib.DataConfig]:
   """A trained NeRF run and its scene (load_run already checks the params against the
   run's architecture)."""
-  run = ckpt_lib.load_run(nerf_run_dir, "nerf")
-  return (run, *ckpt_lib.scene_of(run))
+  run = runs_lib.load_run(nerf_run_dir, "nerf")
+  return (run, *runs_lib.scene_of(run))
 
 
 def check_compatible(stylized: StylizedData, scene: Scene, nerf_run_dir: str) -> None:
@@ -247,7 +247,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   if config.batch_rays % n_devices:
     raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
   check_style_loss(config, scene, n_devices)
-  ckpt_lib.prepare_run_dir(run_dir, KIND, {
+  runs_lib.prepare_run_dir(run_dir, KIND, {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
       "styles": list(stylized.names)})
@@ -273,7 +273,7 @@ def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
   images_lib.write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
 
 
-def style_vectors(run: ckpt_lib.Run) -> Dict[str, np.ndarray]:
+def style_vectors(run: runs_lib.Run) -> Dict[str, np.ndarray]:
   """name -> [1024] vector of every training style of a multi-style run."""
   names = run.record.get("styles", [])
   vectors = images_lib.read_npy(os.path.join(run.run_dir, STYLE_VECTORS),

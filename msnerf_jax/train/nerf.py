@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from msnerf_jax import checkpoint as ckpt_lib
+from msnerf_jax import runs as ckpt_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import rays as rays_lib

@@ -1,0 +1,49 @@
+"""Videos and grids of a multi-style run along its camera path (what `msnerf render` and the
+pipeline's renders stage write). The style vectors come from `msnerf_jax.styles`."""
+
+from typing import Any, Callable, List, Optional, Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from msnerf_jax import styles as styles_lib
+from msnerf_jax import video
+
+# (c2w [3, 4], K style vectors [1024]) -> K images [K, H, W, 3] in [0, 1].
+StyleRenderer = Callable[[np.ndarray, Sequence[np.ndarray]], np.ndarray]
+
+
+def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRenderer:
+  """Renders one camera of a loaded multi-style run in K styles at once (one trunk pass)."""
+  from msnerf_jax.train import multistyle  # pylint: disable=g-import-not-at-top
+  return lambda c2w, styles: multistyle.render_styles(scene, run.params, run.config, c2w,
+                                                      np.stack(styles), chunk)["rgb"]
+
+
+def spaced_views(poses: np.ndarray, n: int) -> np.ndarray:
+  """n cameras [n, 3, 4] from `poses` [P, 3, 4], (P - 1) / n apart, starting at the first."""
+  return poses[np.linspace(0, len(poses) - 1, max(1, n) + 1)[:-1].round().astype(int)]
+
+
+def write_render_videos(render: StyleRenderer, poses: np.ndarray, main: np.ndarray,
+                        ends: Optional[Sequence[np.ndarray]], stem: str, fps: int,
+                        grid_steps: int, grid_views: int, progress: bool = True) -> List[str]:
+  """The files of `msnerf render` for a multi-style run; returns their paths.
+
+  STEM.mp4/.gif: every camera of `poses` [P, 3, 4] in the style `main` [1024]. With `ends`
+  (two style vectors A, B) also STEM_morph.mp4/.gif, whose style moves from A to B along the
+  path, and STEM_grid.png: `grid_views` rows (cameras) x `grid_steps` columns (A ... B).
+  """
+  frames = [render(c2w, [main])[0] for c2w in tqdm(poses, desc="style video", disable=not progress)]
+  written = video.write_videos(stem, frames, fps)
+  if ends is None:
+    return written
+  path = styles_lib.sweep(ends[0], ends[1], len(poses))
+  frames = [render(c2w, [v])[0] for c2w, v in tqdm(list(zip(poses, path)), desc="morph video",
+                                                     disable=not progress)]
+  written += video.write_videos(stem + "_morph", frames, fps)
+  steps = styles_lib.sweep(ends[0], ends[1], max(2, grid_steps))
+  rows = [list(render(c2w, steps))  # one sweep per view
+          for c2w in tqdm(spaced_views(poses, grid_views), desc="grid", disable=not progress)]
+  written.append(video.write_grid(stem + "_grid.png", rows))
+  return written

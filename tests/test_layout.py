@@ -1,0 +1,87 @@
+"""The package's import graph (read from the source with ast, nothing imported): no cycles but
+the data-format registry, and the library never imports its command line."""
+
+import ast
+import os
+
+import msnerf_jax
+
+PACKAGE = os.path.dirname(os.path.abspath(msnerf_jax.__file__))
+# data.scene.load_scene imports the format loaders, which use the Scene they return.
+ALLOWED_CYCLES = [{"msnerf_jax.data.scene", "msnerf_jax.data.blender", "msnerf_jax.data.llff"}]
+
+
+def modules():
+  """Dotted module name -> file of every module of the package."""
+  found = {}
+  for root, _, files in os.walk(PACKAGE):
+    for name in files:
+      if name.endswith(".py"):
+        path = os.path.join(root, name)
+        rel = os.path.relpath(path, os.path.dirname(PACKAGE))[:-3].replace(os.sep, ".")
+        found[rel[:-len(".__init__")] if rel.endswith(".__init__") else rel] = path
+  return found
+
+
+def import_graph():
+  """Module -> the package modules it imports (at the top or inside functions)."""
+  mods = modules()
+  graph = {}
+  for module, path in mods.items():
+    deps = set()
+    with open(path) as f:
+      tree = ast.parse(f.read())
+    for node in ast.walk(tree):
+      if isinstance(node, ast.Import):
+        names = [a.name for a in node.names]
+      elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+        names = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in mods else node.module
+                 for a in node.names]
+      else:
+        continue
+      deps.update(n for n in names if n in mods and n != module)
+    graph[module] = deps
+  return graph
+
+
+def cycles(graph):
+  """The strongly connected components of more than one module (Tarjan)."""
+  index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+  def visit(v):
+    index[v] = low[v] = len(index)
+    stack.append(v)
+    on_stack.add(v)
+    for w in sorted(graph[v]):
+      if w not in index:
+        visit(w)
+        low[v] = min(low[v], low[w])
+      elif w in on_stack:
+        low[v] = min(low[v], index[w])
+    if low[v] == index[v]:
+      component = set()
+      while True:
+        w = stack.pop()
+        on_stack.discard(w)
+        component.add(w)
+        if w == v:
+          break
+      if len(component) > 1:
+        found.append(component)
+
+  for v in sorted(graph):
+    if v not in index:
+      visit(v)
+  return found
+
+
+def test_no_import_cycle_but_the_format_registry():
+  assert [c for c in cycles(import_graph()) if c not in ALLOWED_CYCLES] == []
+
+
+def test_the_library_never_imports_the_cli():
+  cli = "msnerf_jax.cli"
+  offenders = {m: sorted(d for d in deps if d == cli or d.startswith(cli + "."))
+               for m, deps in import_graph().items()
+               if not (m == cli or m.startswith(cli + ".") or m == "msnerf_jax.__main__")}
+  assert {m: d for m, d in offenders.items() if d} == {}
