@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from msnerf_jax import consistency
-from msnerf_jax.checkpoint import load_run, scene_of
+from msnerf_jax.runs import load_run_and_scene
 from msnerf_jax.train import nerf
 
 
@@ -35,10 +35,8 @@ def main():
         f"{'rmse_k7':>8} {'seconds':>8}")
   for run_dir in args.run:
     t0 = time.time()
-    run = load_run(run_dir, "nerf")
-    scene, _ = scene_of(run)
-    poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1,
-                                           args.frames).round().astype(int)]
+    run, scene = load_run_and_scene(run_dir, "nerf")
+    poses = scene.path_poses(args.frames)
     outs = [nerf.render_view(scene, run.params, run.config, c2w) for c2w in poses]
     frames = [o["rgb"] for o in outs]
     depths = [o["depth"] for o in outs]

@@ -178,7 +178,7 @@ class MultistyleConfig:
   """Multi-style NeRF: style heads around the frozen trunk of a trained NeRF.
 
   `nerf` is the NeRF run's config (architecture and sampling are inherited from it); the rest
-  are the new heads (METHOD.md "Multi-style NeRF details") and their optimisation.
+  are the new heads (docs/method.md, the multi-style model) and their optimisation.
   """
   nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
   density_aware: bool = False  # also a style-to-density MLP and a new density head.
@@ -189,7 +189,7 @@ class MultistyleConfig:
   rgb_extra_layers: int = 0  # extra W/2 layers in the new rgb MLP (W -> W/2 -> ... -> 3).
   density_extra_layers: int = 0  # extra W layers in the new density MLP (2W -> W -> ... -> 1).
   batch_rays: int = 1024  # pixels per step; each supervises every style (standard variant).
-  # Patch style loss (an option beyond METHOD.md, off at 0): weight of the AdaIN statistics
+  # Patch style loss (an option beyond docs/method.md, off at 0): weight of the AdaIN statistics
   # loss between rendered patches and the same patches of the stylized targets.
   style_weight: float = 0.0
   style_patch: int = 32  # side of each square patch, in pixels.

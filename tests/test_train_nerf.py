@@ -72,24 +72,24 @@ def test_run_dir_of_another_config_is_refused_and_kept(tiny_blender, tmp_path):
 
 
 def test_run_json_from_before_a_config_field_existed_resumes(tmp_path):
-  from msnerf_jax import config as config_lib, runs as checkpoint  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import config as config_lib, runs  # pylint: disable=g-import-not-at-top
   import json  # pylint: disable=g-import-not-at-top
   run = str(tmp_path / "run")
   full = config_lib.to_dict(config_lib.MultistyleConfig(steps=5))
-  checkpoint.prepare_run_dir(run, "multistyle", {"config": full})
+  runs.prepare_run_dir(run, "multistyle", {"config": full})
   path = os.path.join(run, "run.json")
   record = json.load(open(path))
   for key in ("style_weight", "style_patch", "style_patches"):
     del record["config"][key]  # as written by a version without the patch style loss
   json.dump(record, open(path, "w"))
-  assert checkpoint.prepare_run_dir(run, "multistyle", {"config": full}) is True
+  assert runs.prepare_run_dir(run, "multistyle", {"config": full}) is True
   record = json.load(open(path))
   assert record["config"]["style_patch"] == 32  # rewritten in full
   del record["config"]["style_weight"]
   json.dump(record, open(path, "w"))
   other = dict(full, style_weight=0.5)  # a field the old run had at its default: refused
   with pytest.raises(UserError, match="another config.*style_weight: saved 0.0, now 0.5"):
-    checkpoint.prepare_run_dir(run, "multistyle", {"config": other})
+    runs.prepare_run_dir(run, "multistyle", {"config": other})
 
 
 def test_nan_loss_stops_with_the_step_and_keeps_checkpoint(tiny_blender, tmp_path):

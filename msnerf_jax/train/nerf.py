@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from msnerf_jax import runs as ckpt_lib
+from msnerf_jax import runs
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import rays as rays_lib
@@ -154,7 +154,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
 
   `style` ({"stylized": dataset folder, "name": style}) records that the scene's images are
   one style's stylized views (data.stylized.style_views), so that loading the run
-  (checkpoint.run_scene) reloads those views: the single-style NeRF baseline.
+  (runs.scene_of) reloads those views: the single-style NeRF baseline.
 
   Checkpoints every config.checkpoint_every steps and at the end; re-running with the same
   settings resumes from the latest complete checkpoint. A NaN/inf loss stops training with
@@ -173,7 +173,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
                     f"channel (a Blender RGBA scene); this {scene.format} scene has none: "
                     "train with --no-random-background (and --distortion-weight against "
                     "floaters)")
-  ckpt_lib.prepare_run_dir(run_dir, "nerf", record)
+  runs.prepare_run_dir(run_dir, "nerf", record)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
   alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
