@@ -96,8 +96,14 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         steps=6000,
         checkpoint_every=500,
         mlp_chunk=2048)
+  return override(config, **overrides)
+
+
+def override(config: T, **overrides: Any) -> T:
+  """`config` with the overrides that are not None. On a NerfConfig, a net_depth given
+  without skip_layer puts the skip connection after the middle layer."""
   overrides = {k: v for k, v in overrides.items() if v is not None}
-  if "net_depth" in overrides:
+  if "net_depth" in overrides and isinstance(config, NerfConfig):
     overrides.setdefault("skip_layer", overrides["net_depth"] // 2)
   return dataclasses.replace(config, **overrides)
 

@@ -44,6 +44,17 @@ def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
   return run
 
 
+def load_config(path: str, kind: str) -> Any:
+  """The config of a saved run, to start another from: `path` is a run folder or its
+  run.json; UserError unless it is a run of `kind`."""
+  run_dir = os.path.dirname(path) if os.path.basename(path) == RUN_FILE else path
+  if os.path.isfile(path) and os.path.basename(path) != RUN_FILE:
+    raise UserError(f"{path}: expected a run folder or its {RUN_FILE}")
+  run = read_run_file(run_dir, kind)
+  return config_lib.from_dict(config_lib.config_class(kind), run["config"],
+                              os.path.join(run_dir, RUN_FILE))
+
+
 def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
   """Creates a run folder or checks that an existing one was made with the same settings.
 

@@ -5,11 +5,8 @@ import sys
 from typing import List, Optional
 
 from msnerf_jax import __version__
+from msnerf_jax.cli.config_args import Formatter as _Formatter
 from msnerf_jax.errors import UserError
-
-
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-  pass
 
 
 def build_parser() -> argparse.ArgumentParser:

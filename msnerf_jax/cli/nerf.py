@@ -10,7 +10,13 @@ import numpy as np
 from msnerf_jax import config as config_lib
 from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
                                    print_training_summary)
+from msnerf_jax.cli.config_args import add_config_arguments, config_overrides
 from msnerf_jax.errors import UserError
+
+
+# NerfConfig fields with options of their own above the generated ones.
+_HAND_WRITTEN = ("steps", "batch_rays", "checkpoint_every", "net_depth", "net_width", "n_coarse",
+                 "n_fine", "random_background", "distortion_weight", "seed")
 
 
 def register(commands, formatter):
@@ -56,6 +62,13 @@ def register(commands, formatter):
                       "stylize-scene` of the same scene) instead of the photos: the "
                       "single-style baseline; needs --style")
   p.add_argument("--style", default=None, metavar="NAME", help="the style, with --stylized")
+  p.add_argument("--config", default=None, metavar="RUN",
+                 help="start from the config of a saved NeRF run (its folder or run.json) "
+                      "instead of --preset; the options given override it (default: none)")
+  add_config_arguments(p, config_lib.NerfConfig, None, title="every other NeRF setting",
+                       skip=_HAND_WRITTEN)
+  add_config_arguments(p, config_lib.DataConfig, config_lib.DataConfig(),
+                       title="scene loading", skip=("path", "downscale"))
   p.set_defaults(func=cmd_train)
 
   p = verbs.add_parser("eval", formatter_class=formatter, help="PSNR/SSIM on a held-out split",
@@ -81,13 +94,22 @@ def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.scene import load_scene
   from msnerf_jax.train import nerf
-  data_config = config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale)
+  from msnerf_jax.runs import load_config
+  data_config = config_lib.override(
+      config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale),
+      **config_overrides(args, config_lib.DataConfig))
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  for flag in ("steps", "net_depth", "net_width", "n_coarse", "n_fine"):
+  for flag in ("steps", "net_depth", "net_width", "n_coarse", "n_fine", "batch_rays",
+               "checkpoint_every", "keep_checkpoints", "lr_decay_steps", "render_chunk",
+               "llff_holdout"):
     value = getattr(args, flag)
     if value is not None and value < 1:
       raise UserError(f"--{flag.replace('_', '-')} {value}: must be >= 1")
+  for flag in ("lr_init", "lr_final"):
+    value = getattr(args, flag)
+    if value is not None and not value > 0:
+      raise UserError(f"--{flag.replace('_', '-')} {value}: must be positive")
   if args.distortion_weight is not None and not args.distortion_weight >= 0:
     raise UserError(f"--distortion-weight {args.distortion_weight}: must be >= 0")
   if (args.stylized is None) != (args.style is None):
@@ -98,15 +120,14 @@ def cmd_train(args):
     from msnerf_jax.data.stylized import style_views
     style = {"stylized": os.path.abspath(args.stylized), "name": args.style}
     scene = style_views(style["stylized"], args.style, scene)
-  config = config_lib.nerf_preset(args.preset, data_config.format, steps=args.steps,
-                                  batch_rays=args.batch_rays, seed=args.seed,
-                                  checkpoint_every=args.checkpoint_every,
-                                  net_depth=args.net_depth, net_width=args.net_width,
-                                  n_coarse=args.n_coarse, n_fine=args.n_fine,
-                                  random_background=args.random_background,
-                                  distortion_weight=args.distortion_weight)
+  overrides = config_overrides(args, config_lib.NerfConfig)
+  if args.config is not None:
+    config = config_lib.override(load_config(args.config, "nerf"), **overrides)
+  else:
+    config = config_lib.nerf_preset(args.preset, data_config.format, **overrides)
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
-        f"views of {scene.width}x{scene.height}; preset {args.preset}"
+        f"views of {scene.width}x{scene.height}; "
+        + (f"config of {args.config}" if args.config else f"preset {args.preset}")
         + (f"; style {args.style} of {args.stylized}" if style else ""))
   summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices, style=style)
   print_training_summary("NeRF training done", summary, "",

@@ -1,0 +1,70 @@
+"""Command-line options generated from the config dataclasses: every field reachable."""
+
+import argparse
+import dataclasses
+from typing import Any, Dict, Iterable, Type
+
+# Help for the fields that have no hand-written option of their own.
+HELP = {
+    # NerfConfig
+    "pos_freqs": "positional-encoding frequencies of the points",
+    "dir_freqs": "positional-encoding frequencies of the view directions",
+    "skip_layer": "trunk layer whose output gets the encoded input again",
+    "lindisp": "sample linearly in inverse depth instead of depth",
+    "perturb": "jitter the stratified samples while training",
+    "raw_noise_std": "std of the noise added to the raw density while training",
+    "lr_init": "initial learning rate",
+    "lr_final": "learning rate reached at --lr-decay-steps (exponential decay)",
+    "lr_decay_steps": "steps over which the learning rate decays to --lr-final",
+    "precrop_steps": "Blender: steps that sample only the central crop of each view",
+    "precrop_frac": "side of that central crop, as a fraction of the view",
+    "keep_checkpoints": "checkpoints kept in RUN/checkpoints",
+    "render_chunk": "rays per jitted rendering call (bounds memory)",
+    "mlp_chunk": "samples per MLP call inside a step (0 = all at once)",
+    # MultistyleConfig
+    "style_dim": "length of the style vectors",
+    "style_hidden": "width of the style MLP's first hidden layer",
+    "style_hidden2": "width of the style MLP's second hidden layer",
+    "normalize_styles": "standardise each style vector before the style MLPs",
+    # AdainConfig
+    "encoder": "the frozen encoder the decoder is trained against",
+    # DataConfig
+    "format": "scene format: auto, blender or llff",
+    "llff_holdout": "LLFF: every n-th image is held out for val/test",
+}
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: Any,
+                         skip: Iterable[str] = (), title: str = "more settings") -> None:
+  """One option --field-name per field of the dataclass `cls` not in `skip` (those have
+  hand-written options), in a group of its own. Each defaults to None, meaning "as
+  `defaults` says" (shown in the help); booleans get --x / --no-x."""
+  group = parser.add_argument_group(title)
+  for field in dataclasses.fields(cls):
+    if field.name in skip or dataclasses.is_dataclass(field.default_factory):
+      continue
+    value = getattr(defaults, field.name) if defaults is not None else field.default
+    shown = "the preset's" if defaults is None else value
+    kwargs: Dict[str, Any] = ({"action": argparse.BooleanOptionalAction}
+                              if isinstance(field.default, bool) else
+                              {"type": type(field.default), "metavar": type(field.default).__name__.upper()})
+    group.add_argument("--" + field.name.replace("_", "-"), default=None,
+                       help=f"{HELP.get(field.name, field.name.replace('_', ' '))} "
+                            f"(default: {shown})", **kwargs)
+
+
+def config_overrides(args: argparse.Namespace, cls: Type) -> Dict[str, Any]:
+  """{field: value} of the fields of `cls` given on the command line (not None)."""
+  return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
+          if getattr(args, f.name, None) is not None}
+
+
+class Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+  """Appends each option's default to its help, except on required options (which have
+  none) and on options whose help already says what None means ("default: the preset's")."""
+
+  def _get_help_string(self, action):
+    text = action.help or ""
+    if action.required or (action.default is None and "default" in text):
+      return text
+    return super()._get_help_string(action)

@@ -1,0 +1,84 @@
+"""Every config field is reachable from the command line; --config starts from a saved run."""
+
+import argparse
+import dataclasses
+import json
+import os
+
+import pytest
+
+from msnerf_jax import cli
+from msnerf_jax import config as config_lib
+from test_cli_nerf import assert_one_line_error, msnerf
+
+
+def verb_parser(*path):
+  parser = cli.build_parser()
+  for name in path:
+    sub = next(a for a in parser._actions  # pylint: disable=protected-access
+               if isinstance(a, argparse._SubParsersAction))  # pylint: disable=protected-access
+    parser = sub.choices[name]
+  return parser
+
+
+def dests(parser):
+  return {a.dest for a in parser._actions}  # pylint: disable=protected-access
+
+
+@pytest.mark.parametrize("path, cls, aliases, fixed", [
+    (("nerf", "train"), config_lib.NerfConfig, {}, ()),
+    (("nerf", "train"), config_lib.DataConfig, {}, ("path",)),  # --data
+    (("multistyle", "train"), config_lib.MultistyleConfig, {"lr_init": "lr"},
+     ("nerf",)),  # the NeRF run's config
+    (("adain", "train"), config_lib.AdainConfig, {}, ("encoder",)),  # one encoder exists
+])
+def test_every_config_field_has_an_option(path, cls, aliases, fixed):
+  have = dests(verb_parser(*path))
+  missing = [f.name for f in dataclasses.fields(cls)
+             if f.name not in fixed and aliases.get(f.name, f.name) not in have]
+  assert not missing, f"{' '.join(path)} lacks options for {missing}"
+
+
+def test_help_has_no_default_none_on_required_options():
+  for path in (("nerf", "train"), ("multistyle", "train"), ("adain", "train"),
+               ("nerf", "eval")):
+    text = " ".join(verb_parser(*path).format_help().split())
+    assert "--data DATA (default: None)" not in text
+    for action in verb_parser(*path)._actions:  # pylint: disable=protected-access
+      if action.required:
+        assert f"{' '.join(action.help.split())} (default: None)" not in text, action.dest
+
+
+def test_generated_options_and_config_file_reach_run_json(tiny_blender, tmp_path):
+  first = str(tmp_path / "first")
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", first, "--steps", "1",
+             "--batch-rays", "64", "--net-width", "16", "--n-coarse", "4", "--n-fine", "4",
+             "--lr-init", "0.01", "--raw-noise-std", "0.5", "--lindisp", "--keep-checkpoints",
+             "1", "--no-perturb", "--pos-freqs", "3", "--llff-holdout", "4")
+  assert r.returncode == 0, r.stderr
+  saved = json.load(open(os.path.join(first, "run.json")))
+  config = saved["config"]
+  assert (config["lr_init"], config["raw_noise_std"], config["lindisp"], config["perturb"],
+          config["keep_checkpoints"], config["pos_freqs"]) == (0.01, 0.5, True, False, 1, 3)
+  assert saved["data"]["llff_holdout"] == 4
+  second = str(tmp_path / "second")
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", second, "--config", first,
+             "--net-depth", "2")
+  assert r.returncode == 0, r.stderr
+  assert "config of" in r.stdout
+  again = json.load(open(os.path.join(second, "run.json")))["config"]
+  assert again == dict(config, net_depth=2, skip_layer=1)  # the rest from the saved run
+
+
+def test_bad_config_file_and_values_are_one_line_errors(tiny_blender, tmp_path):
+  (tmp_path / "x.txt").write_text("x")
+  run = str(tmp_path / "run")
+  for argv, pattern in [
+      (["--config", str(tmp_path / "nope")], "no such run folder"),
+      (["--config", str(tmp_path / "x.txt")], "expected a run folder or its run.json"),
+      (["--lr-init", "0"], "--lr-init 0.0: must be positive"),
+      (["--keep-checkpoints", "0"], "--keep-checkpoints 0: must be >= 1"),
+  ]:
+    assert_one_line_error(msnerf("nerf", "train", "--data", tiny_blender, "--out", run, *argv),
+                          pattern)
+    assert not os.path.exists(run)
