@@ -82,3 +82,36 @@ def test_bad_config_file_and_values_are_one_line_errors(tiny_blender, tmp_path):
     assert_one_line_error(msnerf("nerf", "train", "--data", tiny_blender, "--out", run, *argv),
                           pattern)
     assert not os.path.exists(run)
+
+
+def test_given_options_are_what_the_command_line_sets():
+  from msnerf_jax.cli.config_args import given_options  # pylint: disable=g-import-not-at-top
+  parser = cli.build_parser()
+  given = given_options(parser, ["multistyle", "train", "--nerf", "a", "--stylized", "b",
+                                 "--out", "c", "--steps", "3000", "--style-hidden", "64"])
+  assert {"nerf", "stylized", "out", "steps", "style_hidden"} <= given
+  assert not {"batch_rays", "seed", "lr", "density_aware", "config"} & given
+  # The defaults are back afterwards.
+  args = parser.parse_args(["multistyle", "train", "--nerf", "a", "--stylized", "b", "--out", "c"])
+  assert args.steps == config_lib.MultistyleConfig().steps and args.config is None
+
+
+@pytest.mark.parametrize("kind, argv, field, value", [
+    ("multistyle", ["multistyle", "train", "--nerf", "N", "--stylized", "S", "--out", "O",
+                    "--lr", "0.002"], "lr_final", 0.0002),
+    ("adain", ["adain", "train", "--content", "C", "--styles", "S", "--out", "O",
+               "--batch", "2"], "batch", 2),
+])
+def test_config_file_keeps_what_the_command_line_does_not_set(kind, argv, field, value,
+                                                             tmp_path):
+  from msnerf_jax import runs  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.cli.config_args import given_options, start_config  # pylint: disable=g-import-not-at-top
+  cls = config_lib.config_class(kind)
+  saved = dataclasses.replace(cls(), steps=7, seed=5)
+  runs.prepare_run_dir(str(tmp_path / "run"), kind, {"config": config_lib.to_dict(saved)})
+  parser = cli.build_parser()
+  args = parser.parse_args(argv + ["--config", str(tmp_path / "run")])
+  args.given = given_options(parser, argv + ["--config", str(tmp_path / "run")])
+  built = dataclasses.replace(cls(), **{field: value})  # what the options alone build
+  config = start_config(args, kind, built, {"lr_init": "lr", "lr_final": "lr"})
+  assert (config.steps, config.seed, getattr(config, field)) == (7, 5, value)

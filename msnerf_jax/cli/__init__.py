@@ -6,6 +6,7 @@ from typing import List, Optional
 
 from msnerf_jax import __version__
 from msnerf_jax.cli.config_args import Formatter as _Formatter
+from msnerf_jax.cli.config_args import given_options
 from msnerf_jax.errors import UserError
 
 
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[List[str]] = None) -> int:
   parser = build_parser()
   args = parser.parse_args(argv)
+  args.given = given_options(parser, argv)  # what --config does not override
   try:
     args.func(args)
   except UserError as e:

@@ -3,6 +3,7 @@
 import os
 
 from msnerf_jax import config as config_lib
+from msnerf_jax.cli.config_args import add_config_option, start_config
 from msnerf_jax.errors import UserError
 
 _DEFAULTS = config_lib.AdainConfig()
@@ -54,6 +55,7 @@ def register(commands, formatter):
   train.add_argument("--keep-checkpoints", type=int, default=_DEFAULTS.keep_checkpoints,
                      help="how many recent checkpoints to keep")
   train.add_argument("--no-progress", action="store_true", help="no progress bar")
+  add_config_option(train, "AdaIN decoder")
   train.set_defaults(func=_train)
 
   stylize = verbs.add_parser(
@@ -85,12 +87,13 @@ def register(commands, formatter):
 def _train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain
-  config = config_lib.AdainConfig(
+  built = config_lib.AdainConfig(
       size=args.size, resize=args.resize, batch=args.batch, steps=args.steps, lr=args.lr,
       lr_decay=args.lr_decay, content_weight=args.content_weight, style_weight=args.style_weight,
       upsample=args.upsample, holdout_every=args.holdout_every, seed=args.seed,
       sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
       keep_checkpoints=max(1, args.keep_checkpoints))
+  config = start_config(args, "adain", built)
   if args.lr <= 0 or not args.lr < float("inf"):
     raise UserError(f"--lr {args.lr}: must be positive")
   train_adain.train(config, args.content, args.styles, args.out, progress=not args.no_progress)

@@ -2,7 +2,7 @@
 
 import argparse
 import dataclasses
-from typing import Any, Dict, Iterable, Type
+from typing import Any, Dict, Iterable, Set, Type
 
 # Help for the fields that have no hand-written option of their own.
 HELP = {
@@ -51,6 +51,54 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: A
     group.add_argument("--" + field.name.replace("_", "-"), default=None,
                        help=f"{HELP.get(field.name, field.name.replace('_', ' '))} "
                             f"(default: {shown})", **kwargs)
+
+
+def _parsers(parser: argparse.ArgumentParser):
+  """The parser and every sub-parser below it."""
+  yield parser
+  for action in parser._actions:  # pylint: disable=protected-access
+    if isinstance(action, argparse._SubParsersAction):  # pylint: disable=protected-access
+      for sub in action.choices.values():
+        yield from _parsers(sub)
+
+
+def given_options(parser: argparse.ArgumentParser, argv) -> Set[str]:
+  """The dests of the options `argv` sets itself (not left at their default): parses it
+  once more with every default suppressed."""
+  actions = [a for p in _parsers(parser) for a in p._actions  # pylint: disable=protected-access
+             if a.option_strings]
+  saved = [a.default for a in actions]
+  try:
+    for action in actions:
+      action.default = argparse.SUPPRESS
+    return set(vars(parser.parse_args(argv)))
+  finally:
+    for action, default in zip(actions, saved):
+      action.default = default
+
+
+def start_config(args: argparse.Namespace, kind: str, built: Any,
+                 aliases: Dict[str, str] = None) -> Any:
+  """The config a trainer starts from: `built` from the options, or with --config RUN that
+  run's config with only the options given on the command line on top. `aliases` maps a
+  field to the option dest that sets it (lr_init -> lr)."""
+  if getattr(args, "config", None) is None:
+    return built
+  from msnerf_jax import config as config_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.runs import load_config  # pylint: disable=g-import-not-at-top
+  aliases = aliases or {}
+  given = getattr(args, "given", set())
+  explicit = {f.name: getattr(built, f.name) for f in dataclasses.fields(built)
+              if aliases.get(f.name, f.name) in given}
+  return config_lib.override(load_config(args.config, kind), **explicit)
+
+
+def add_config_option(parser: argparse.ArgumentParser, kind: str) -> None:
+  """--config RUN: start from a saved run's config."""
+  parser.add_argument("--config", default=None, metavar="RUN",
+                      help=f"start from the config of a saved {kind} run (its folder or "
+                           "run.json); the options given on the command line override it "
+                           "(default: none)")
 
 
 def config_overrides(args: argparse.Namespace, cls: Type) -> Dict[str, Any]:

@@ -7,7 +7,8 @@ import time
 from msnerf_jax import config as config_lib
 from msnerf_jax.cli.common import (load_run_and_scene, output_stem, print_summary,
                                    print_training_summary)
-from msnerf_jax.cli.config_args import add_config_arguments, config_overrides
+from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
+                                        config_overrides, start_config)
 from msnerf_jax.errors import UserError
 
 _DEFAULTS = config_lib.MultistyleConfig()
@@ -79,6 +80,7 @@ def register(commands, formatter):
   p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
   p.add_argument("--devices", type=int, default=None,
                  help="local devices to train on (default: all; gradients are averaged)")
+  add_config_option(p, "multistyle")
   add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS,
                        title="every other multi-style setting", skip=(
                            "density_aware", "steps", "batch_rays", "lr_init", "rgb_extra_layers",
@@ -179,13 +181,16 @@ def cmd_train(args):
       raise UserError(f"--{flag.replace('_', '-')} {getattr(args, flag)}: must be >= 0")
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  config = config_lib.override(config_lib.MultistyleConfig(
+  built = config_lib.override(config_lib.MultistyleConfig(
       density_aware=args.density_aware, steps=args.steps, batch_rays=args.batch_rays,
       lr_init=args.lr, lr_final=args.lr / 10, checkpoint_every=args.checkpoint_every,
       seed=args.seed, rgb_extra_layers=args.rgb_extra_layers,
       density_extra_layers=args.density_extra_layers, style_weight=args.style_weight,
       style_patch=args.style_patch, style_patches=args.style_patches),
       **config_overrides(args, config_lib.MultistyleConfig))
+  # --lr also sets lr_final (lr / 10) unless --lr-final is given.
+  config = start_config(args, "multistyle", built,
+                        {"lr_init": "lr", "lr_final": "lr_final" if args.lr_final else "lr"})
   stylized = load_stylized(args.stylized)
   print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
         f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")

@@ -10,7 +10,7 @@ import numpy as np
 from msnerf_jax import config as config_lib
 from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
                                    print_training_summary)
-from msnerf_jax.cli.config_args import add_config_arguments, config_overrides
+from msnerf_jax.cli.config_args import add_config_arguments, add_config_option, config_overrides
 from msnerf_jax.errors import UserError
 
 
@@ -62,9 +62,7 @@ def register(commands, formatter):
                       "stylize-scene` of the same scene) instead of the photos: the "
                       "single-style baseline; needs --style")
   p.add_argument("--style", default=None, metavar="NAME", help="the style, with --stylized")
-  p.add_argument("--config", default=None, metavar="RUN",
-                 help="start from the config of a saved NeRF run (its folder or run.json) "
-                      "instead of --preset; the options given override it (default: none)")
+  add_config_option(p, "NeRF")
   add_config_arguments(p, config_lib.NerfConfig, None, title="every other NeRF setting",
                        skip=_HAND_WRITTEN)
   add_config_arguments(p, config_lib.DataConfig, config_lib.DataConfig(),
