@@ -18,7 +18,7 @@ from msnerf_jax import checkpoint, cli, load_run, runs
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
-from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP
+from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP, MultistyleField
 from msnerf_jax.models.nerf import NerfTrunk
 from msnerf_jax.train import multistyle, nerf
 
@@ -472,7 +472,7 @@ def test_style_loss_pulls_the_heads_and_resumes_bit_identically(world, tmp_path)
       jax.random.PRNGKey(1), jnp.asarray(np.moveaxis(data.images[:, :4], 0, 3)),
       jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, scene)
   trainable, frozen = multistyle.split_frozen(multistyle.init_state(config, nerf_run.params).params)
-  field = multistyle.MultistyleField(config)
+  field = MultistyleField(config)
 
   def style_only(heads):
     return multistyle.patch_style_loss(field, multistyle.merge(heads, frozen), batch["patches"],

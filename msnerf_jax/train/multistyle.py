@@ -23,7 +23,7 @@ from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, check_views
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
+from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -31,21 +31,6 @@ from msnerf_jax.train import state as state_lib
 KIND = "multistyle"
 FROZEN = "trunk"
 STYLE_VECTORS = "style_vectors.npy"
-
-
-@dataclasses.dataclass(frozen=True)
-class MultistyleField:
-  """The style field of a MultistyleConfig as a hashable value (a static jit argument)."""
-  config: MultistyleConfig
-
-  def codes(self, params, styles):
-    """Style MLP outputs, once per style: styles [M, 1024] -> {"rgb": [M, W/2], ...}."""
-    model = multistyle_mlp(self.config)
-    return model.apply({"params": params}, styles, method=model.codes)
-
-  def __call__(self, params, points, viewdirs, codes):
-    """points [R, S, 3] or [M, R, S, 3] -> rgb [M, R, S, 3], raw sigma (see MultiStyleMLP)."""
-    return multistyle_mlp(self.config).apply({"params": params}, points, viewdirs, codes)
 
 
 # ----------------------------------------------------------------------------- frozen trunk

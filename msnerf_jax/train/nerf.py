@@ -1,6 +1,5 @@
 """Training and evaluating a vanilla NeRF, top to bottom: batch -> coarse/fine render -> MSE -> Adam."""
 
-import dataclasses
 import functools
 import os
 from typing import Any, Callable, Dict, Optional
@@ -19,18 +18,9 @@ from msnerf_jax import render as render_lib
 from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
-from msnerf_jax.models.nerf import init_nerf_params, nerf_mlp
+from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
-
-
-@dataclasses.dataclass(frozen=True)
-class NerfField:
-  """The radiance field of a NerfConfig as a hashable callable (a static jit argument)."""
-  config: NerfConfig
-
-  def __call__(self, params, points, viewdirs):
-    return nerf_mlp(self.config).apply({"params": params}, points, viewdirs)
 
 
 # ----------------------------------------------------------------------------- batches
