@@ -37,7 +37,9 @@ from msnerf_jax import regularizers, render as render_lib, video
 from msnerf_jax.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
+from msnerf_jax.evaluate import evaluate_nerf
 from msnerf_jax.train import nerf
+from msnerf_jax.views import render_view
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
@@ -111,7 +113,7 @@ def main():
 
     def on_checkpoint(step, params, config=config, rows=rows, clock=clock, name=name):
       t = time.time()
-      _, mean, _ = nerf.evaluate(scene, params, config, split, progress=False)
+      _, mean, _ = evaluate_nerf(scene, params, config, split, progress=False)
       if not lego:
         mean["distortion"], mean["off_surface"] = weight_stats(scene, params, config,
                                                                scene.split(split))
@@ -124,7 +126,7 @@ def main():
     nerf.train(scene, config, data_config, run, progress=False, callback=on_checkpoint)
     table[name] = {"config": dataclasses.asdict(config), "rows": rows}
     params = msnerf_jax.load_run(run).params
-    renders = [nerf.render_view(scene, params, config, scene.c2w[i]) for i in views]
+    renders = [render_view(scene, params, config, scene.c2w[i]) for i in views]
     table[name]["figure"] = renders
   # Figure: per variant, render | opacity | depth of each view.
   lo = min(float(np.percentile(r["depth"][r["accumulation"] > 0.5], 1))

@@ -18,6 +18,7 @@ import time
 
 import jax
 
+from msnerf_jax import evaluate
 from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
@@ -61,7 +62,7 @@ def main():
 
   def on_checkpoint(step, params):
     t = time.time()
-    _, mean, _ = nerf.evaluate(scene, params, config, "val", progress=False)
+    _, mean, _ = evaluate.evaluate_nerf(scene, params, config, "val", progress=False)
     clock["eval"] += time.time() - t
     train_s = time.time() - clock["start"] - clock["eval"]
     rows.append({"step": step, "train_seconds": round(train_s, 1), **mean})

@@ -26,8 +26,7 @@ import jax, numpy as np
 from msnerf_jax import rays as rays_lib, render
 from msnerf_jax.config import nerf_preset
 from msnerf_jax.data.blender import pose_spherical
-from msnerf_jax.models.nerf import init_nerf_params
-from msnerf_jax.train.nerf import NerfField
+from msnerf_jax.models.nerf import NerfField, init_nerf_params
 
 size, max_chunks, chunk = (int(a) for a in sys.argv[1:4])
 mib = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -26,7 +26,7 @@ import numpy as np
 
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig, nerf_preset
-from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
+from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params, multistyle_mlp
 from msnerf_jax.models.nerf import init_nerf_params
 from msnerf_jax.rays import get_rays, ray_bundle
 from msnerf_jax.train import multistyle
@@ -143,7 +143,7 @@ def main():
   c2w = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4]], np.float32)
   origins, directions = get_rays(size, size, K, c2w)
   image_rays = ray_bundle(origins, directions, 2.0, 6.0)
-  field = multistyle.MultistyleField(config)
+  field = MultistyleField(config)
   sweep_styles = jax.random.normal(key, (args.sweep, 1024))
   t_one = timed(lambda: render_lib.render_image(field, params, image_rays, nerf_config, True,
                                                 styles=sweep_styles[:1])["rgb"], 3)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.config import nerf_preset
-from msnerf_jax.models.nerf import mlp_flops_per_sample
+from msnerf_jax.models.nerf import NerfField, mlp_flops_per_sample
 from msnerf_jax.render import render_image
 from msnerf_jax.train import nerf
 
@@ -97,7 +97,7 @@ def main():
     params = holder["state"].params
     rays = synthetic_batch(dataclass_replace(config, batch_rays=args.render_rays),
                            jax.random.PRNGKey(1))["rays"]
-    field = nerf.NerfField(config)
+    field = NerfField(config)
     render_best, _ = timed(lambda: render_image(field, params, rays, config, True)["rgb"], 2)
     print(f"[{preset}] width {config.net_width} depth {config.net_depth}, "
           f"{config.batch_rays} rays x ({config.n_coarse} + {config.n_coarse + config.n_fine}) "

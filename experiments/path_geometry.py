@@ -20,7 +20,7 @@ import numpy as np
 
 from msnerf_jax import consistency
 from msnerf_jax.runs import load_run_and_scene
-from msnerf_jax.train import nerf
+from msnerf_jax import views
 
 
 def main():
@@ -37,7 +37,7 @@ def main():
     t0 = time.time()
     run, scene = load_run_and_scene(run_dir, "nerf")
     poses = scene.path_poses(args.frames)
-    outs = [nerf.render_view(scene, run.params, run.config, c2w) for c2w in poses]
+    outs = [views.render_view(scene, run.params, run.config, c2w) for c2w in poses]
     frames = [o["rgb"] for o in outs]
     depths = [o["depth"] for o in outs]
     accs = [o["accumulation"] for o in outs]

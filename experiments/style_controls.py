@@ -32,15 +32,13 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # pylint: disable=g-import-not-at-top
-from msnerf_jax import evaluate, metrics, video
+from msnerf_jax import evaluate, metrics, video, views
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import load_run, load_run_and_scene
+from msnerf_jax.runs import load_run, load_run_and_scene, style_vectors
 from msnerf_jax.styles import resolve_style, sweep
-from msnerf_jax.train import multistyle
-from msnerf_jax.train import nerf as nerf_lib
 
 
 def style_picture(spec, sources):
@@ -66,14 +64,14 @@ def main():
   args = parser.parse_args()
   t0 = time.time()
   run, scene = load_run_and_scene(args.run, "multistyle")
-  vectors = multistyle.style_vectors(run)
+  vectors = style_vectors(run)
   manifest = read_manifest(run.record["stylized"])
   sources = {s["name"]: s["source"] for s in manifest["styles"] if s["source"]}
   encoder, cache = vgg.load_vgg_params(), {}
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses), args.views + 1)[:-1]
                              .round().astype(int)]
-  render = lambda styles: [multistyle.render_styles(scene, run.params, run.config, c2w,
-                                                    np.stack(styles), args.chunk)["rgb"]
+  render = lambda styles: [views.render_styles(scene, run.params, run.config, c2w,
+                                               np.stack(styles), args.chunk)["rgb"]
                            for c2w in poses]  # [views][K, H, W, 3]: one sweep per view
   ts = np.linspace(0.0, 1.0, max(2, args.steps))
   at_view_size = lambda picture: stylize_lib.cover_crop(picture, scene.height, scene.width)
@@ -91,8 +89,8 @@ def main():
       ends = [vectors["original"], resolve_style(args.styles[0], vectors, cache)]
       images = {args.styles[0]: at_view_size(style_picture(args.styles[0], sources))}
       nerf_run = load_run(run.record["nerf_run"])
-      photo = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w,
-                                    args.chunk)["rgb"] for c2w in poses]
+      photo = [views.render_view(scene, nerf_run.params, nerf_run.config, c2w,
+                                 args.chunk)["rgb"] for c2w in poses]
     sweeps = render(sweep(ends[0], ends[1], len(ts)))
     grid = [list(s) for s in sweeps]
     key = "t" if args.mode == "interp" else "s"
@@ -108,7 +106,7 @@ def main():
   else:
     decoder = stylize_lib.load_decoder(manifest["decoder"])
     nerf_run = load_run(run.record["nerf_run"])
-    base = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w, args.chunk)
+    base = [views.render_view(scene, nerf_run.params, nerf_run.config, c2w, args.chunk)
             for c2w in poses]
     for spec in args.styles:
       picture = style_picture(spec, sources)

@@ -30,11 +30,10 @@ from tqdm.auto import tqdm
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 # pylint: disable=g-import-not-at-top
-from msnerf_jax import consistency
+from msnerf_jax import consistency, views
 from msnerf_jax.runs import load_run
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
-from msnerf_jax.train import nerf as nerf_lib
 
 
 def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
@@ -64,7 +63,7 @@ def main():
 
   def geo(i):
     if i not in geometry:
-      geometry[i] = nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, scene.c2w[i])
+      geometry[i] = views.render_view(scene, nerf_run.params, nerf_run.config, scene.c2w[i])
     return geometry[i]
 
   # Every style's view i on the channels of one image [H, W, 3M]: one warp per neighbour.
@@ -84,8 +83,8 @@ def main():
     weights = masks[..., None].astype(np.float32)
     average = (warped * weights).sum(0) / np.maximum(weights.sum(0), 1.0)
     target = stacked(t)
-    renders = (multistyle.render_styles(scene, ms_run.params, ms_run.config, scene.c2w[t],
-                                        data.vectors)["rgb"] if ms_run else None)
+    renders = (views.render_styles(scene, ms_run.params, ms_run.config, scene.c2w[t],
+                                   data.vectors)["rgb"] if ms_run else None)
     for m, name in enumerate(data.names):
       c = slice(3 * m, 3 * m + 3)
       row = sums[name]

@@ -1,4 +1,11 @@
-"""The stylized-3D evaluation of multi-style runs against the baselines, on one camera path.
+"""Evaluating trained runs.
+
+Held-out views: `evaluate_nerf` (PSNR/SSIM of a NeRF, and on scenes with alpha the rendered
+opacity on empty space and object) and `evaluate_multistyle` (per-style PSNR/SSIM against the
+stylized views), what `msnerf nerf eval` and `msnerf multistyle eval` report.
+
+The stylized-3D evaluation of multi-style runs against the baselines, on one camera path
+(`evaluate_run`, what `msnerf evaluate` reports).
 
 For each style, these methods render the same path:
   - `multistyle` / `multistyle-density`: each multi-style run, all styles in one sweep per view;
@@ -16,7 +23,7 @@ import io
 import json
 import os
 import time
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -25,13 +32,64 @@ from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax import video
+from msnerf_jax.config import MultistyleConfig, NerfConfig
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data.stylized import read_manifest
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.data.stylized import StylizedData, read_manifest
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import load_run, scene_of
-from msnerf_jax.train import multistyle
-from msnerf_jax.train import nerf as nerf_lib
+from msnerf_jax.runs import load_run, scene_of, style_vectors
+from msnerf_jax.views import render_styles, render_view
+
+def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
+                  chunk: Optional[int] = None, progress: bool = True):
+  """PSNR/SSIM of the fine renders on a split. Returns (per-view list, mean dict, renders).
+
+  On scenes with alpha, each view also gets the mean rendered opacity on its ground-truth
+  empty space and on its object (metrics.mask_opacity: "opacity_background",
+  "opacity_object"): white fog over a white background costs no PSNR, but shows there.
+  """
+  idx = scene.split(split)
+  rows, renders = [], []
+  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+    out = render_view(scene, params, config, scene.c2w[i], chunk)
+    target = scene.images[i]
+    row = {"view": os.path.basename(scene.image_paths[i]),
+           "psnr": float(metrics.psnr(out["rgb"], target)),
+           "ssim": float(metrics.ssim(out["rgb"], target))}
+    if scene.alphas is not None:
+      opacity = metrics.mask_opacity(out["accumulation"], scene.alphas[i])
+      row.update({f"opacity_{k}": v for k, v in opacity.items()})
+    rows.append(row)
+    renders.append(out)
+  mean = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0] if k != "view"}
+  return rows, mean, renders
+
+
+def evaluate_multistyle(scene: Scene, stylized: StylizedData, params, config: MultistyleConfig,
+                        split: str = "val", chunk: Optional[int] = None, progress: bool = True
+                        ) -> Tuple[List[Dict[str, Any]], Dict[str, Dict[str, float]]]:
+  """Per-style PSNR/SSIM on the held-out stylized views of a split.
+
+  Returns (rows: one per (style, view), means: style -> {"psnr", "ssim"} plus "mean").
+  """
+  idx = scene.split(split)
+  rows = []
+  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+    out = render_styles(scene, params, config, scene.c2w[i], stylized.vectors, chunk)
+    for m, name in enumerate(stylized.names):
+      target = stylized.images[m, i].astype(np.float32) / 255.0
+      rows.append({"style": name, "view": int(i),
+                   "psnr": float(metrics.psnr(out["rgb"][m], target)),
+                   "ssim": float(metrics.ssim(out["rgb"][m], target))})
+  means = {}
+  for name in stylized.names + ["mean"]:
+    mine = [r for r in rows if name in ("mean", r["style"])]
+    means[name] = {k: float(np.mean([r[k] for r in mine])) for k in ("psnr", "ssim")}
+  return rows, means
+
+
+# ----------------------------------------------------------------------------- against baselines
 
 COLUMNS = ("method", "style", "rmse_k1", "lpips_k1", "rmse_k7", "lpips_k7", "style_adain",
            "style_gram", "coverage_k1")
@@ -103,7 +161,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   scene, _ = scene_of(run)
   manifest = read_manifest(run.record["stylized"])
   sources = {s["name"]: s for s in manifest["styles"] if s["source"]}
-  vectors = [multistyle.style_vectors(r) for r in runs]
+  vectors = [style_vectors(r) for r in runs]
   names = list(styles) if styles else [n for n in vectors[0] if n in sources]
   for name in names:
     for d, v in zip(run_dirs, vectors):
@@ -132,11 +190,11 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   methods = method_labels(runs)
 
   # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
-  base = [nerf_lib.render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk)
+  base = [render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk)
           for c2w in tqdm(poses, desc="NeRF path", disable=not progress, leave=False)]
   # All styles in one sweep per view, for each multi-style run.
   stack = [np.stack([v[n] for n in names]) for v in vectors]
-  swept = [[multistyle.render_styles(scene, r.params, r.config, c2w, s, chunk)
+  swept = [[render_styles(scene, r.params, r.config, c2w, s, chunk)
             for c2w in tqdm(poses, desc=f"{m} path", disable=not progress, leave=False)]
            for r, s, m in zip(runs, stack, methods)]
   rows, figure_rows = [], []
@@ -150,7 +208,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                   for method, sw in zip(methods, swept)]
     if name in singles:
       single = singles[name]
-      renders = [nerf_lib.render_view(scene, single.params, single.config, c2w, chunk)
+      renders = [render_view(scene, single.params, single.config, c2w, chunk)
                  for c2w in tqdm(poses, desc=f"single-style {name}", disable=not progress,
                                  leave=False)]
       candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))

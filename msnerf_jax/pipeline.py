@@ -190,10 +190,9 @@ def _run_renders(out, s: Settings, progress):
   from msnerf_jax import style_videos
   from msnerf_jax import styles as styles_lib
   from msnerf_jax import video
-  from msnerf_jax.runs import load_run_and_scene
-  from msnerf_jax.train import multistyle
+  from msnerf_jax.runs import load_run_and_scene, style_vectors
   run, scene = load_run_and_scene(os.path.join(out, "multistyle"), "multistyle")
-  vectors = multistyle.style_vectors(run)
+  vectors = style_vectors(run)
   names = list(vectors)
   poses = scene.path_poses(s.frames)
   folder = os.path.join(out, "renders")

@@ -1,5 +1,6 @@
 """Run folders: run.json (kind, config, data), the config check on resume, `load_run` and
-`scene_of`. The orbax checkpoints inside a run folder are `msnerf_jax.checkpoint`."""
+`scene_of`, and a multi-style run's style vectors. The orbax checkpoints inside a run folder
+are `msnerf_jax.checkpoint`."""
 
 import dataclasses
 import json
@@ -10,12 +11,13 @@ import numpy as np
 
 from msnerf_jax import config as config_lib
 from msnerf_jax.checkpoint import CHECKPOINT_DIR, Checkpoints
-from msnerf_jax.data.images import read_json, write_json
+from msnerf_jax.data.images import read_json, read_npy, write_json, write_npy
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
 from msnerf_jax.data.stylized import style_views
 from msnerf_jax.errors import UserError
 
 RUN_FILE = "run.json"
+STYLE_VECTORS = "style_vectors.npy"  # a multi-style run's training styles, [M, 1024].
 
 
 # The command that makes a run of each kind (named when another kind is given).
@@ -163,6 +165,17 @@ def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   run = load_run(run_dir, kind)
   return run, scene_of(run)[0]
+
+
+def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
+  write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
+
+
+def style_vectors(run: Run) -> Dict[str, np.ndarray]:
+  """name -> [1024] vector of every training style of a multi-style run."""
+  names = run.record.get("styles", [])
+  vectors = read_npy(os.path.join(run.run_dir, STYLE_VECTORS), (len(names), run.config.style_dim))
+  return dict(zip(names, vectors))
 
 
 def _expected_params(kind: str, config: Any):

@@ -15,9 +15,9 @@ StyleRenderer = Callable[[np.ndarray, Sequence[np.ndarray]], np.ndarray]
 
 def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRenderer:
   """Renders one camera of a loaded multi-style run in K styles at once (one trunk pass)."""
-  from msnerf_jax.train import multistyle  # pylint: disable=g-import-not-at-top
-  return lambda c2w, styles: multistyle.render_styles(scene, run.params, run.config, c2w,
-                                                      np.stack(styles), chunk)["rgb"]
+  from msnerf_jax.views import render_styles  # pylint: disable=g-import-not-at-top
+  return lambda c2w, styles: render_styles(scene, run.params, run.config, c2w,
+                                           np.stack(styles), chunk)["rgb"]
 
 
 def spaced_views(poses: np.ndarray, n: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from PIL import Image
 
 import msnerf_jax
 from msnerf_jax import config as config_lib
-from msnerf_jax import demo, metrics, regularizers
+from msnerf_jax import demo, evaluate, metrics, regularizers
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
@@ -124,8 +124,8 @@ def test_random_backgrounds_keep_the_empty_region_empty(tmp_path):
     cfg = dataclasses.replace(config, random_background=random_background)
     run = str(tmp_path / f"run_{random_background}")
     nerf.train(scene, cfg, data, run, progress=False)
-    _, mean, _ = nerf.evaluate(scene, msnerf_jax.load_run(run).params, cfg, "val",
-                               progress=False)
+    _, mean, _ = evaluate.evaluate_nerf(scene, msnerf_jax.load_run(run).params, cfg, "val",
+                                        progress=False)
     opacity[random_background] = mean
   print(opacity)
   clean = opacity[True]

@@ -1,5 +1,6 @@
 """The package's import graph (read from the source with ast, nothing imported): no cycles but
-the data-format registry, and the library never imports its command line."""
+the data-format registry, the library never imports its command line, and only the command
+line and the pipeline import the trainers."""
 
 import ast
 import os
@@ -84,4 +85,17 @@ def test_the_library_never_imports_the_cli():
   offenders = {m: sorted(d for d in deps if d == cli or d.startswith(cli + "."))
                for m, deps in import_graph().items()
                if not (m == cli or m.startswith(cli + ".") or m == "msnerf_jax.__main__")}
+  assert {m: d for m, d in offenders.items() if d} == {}
+
+
+def inside(module, package):
+  return module == package or module.startswith(package + ".")
+
+
+def test_only_the_cli_and_the_pipeline_import_the_trainers():
+  train = "msnerf_jax.train"
+  allowed = lambda m: (inside(m, "msnerf_jax.cli") or inside(m, train)
+                       or m == "msnerf_jax.pipeline")
+  offenders = {m: sorted(d for d in deps if inside(d, train))
+               for m, deps in import_graph().items() if not allowed(m)}
   assert {m: d for m, d in offenders.items() if d} == {}

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli, load_run, runs
+from msnerf_jax import checkpoint, cli, load_run, runs, views
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
-from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP
+from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP, MultistyleField
 from msnerf_jax.models.nerf import NerfTrunk
 from msnerf_jax.train import multistyle, nerf
 
@@ -254,22 +254,22 @@ def test_trunk_is_frozen_and_heads_train(world, trained):
 def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
   from msnerf_jax.styles import blend  # pylint: disable=g-import-not-at-top
   run, scene = load_run(trained), world["scene"]
-  vectors = multistyle.style_vectors(run)
+  vectors = runs.style_vectors(run)
   a, b = vectors["red"], vectors["blue"]
   styles = np.stack([a, b, blend(a, b, 0.3)])
   c2w = scene.c2w[4]
-  sweep = multistyle.render_styles(scene, run.params, run.config, c2w, styles, chunk=64)
+  sweep = views.render_styles(scene, run.params, run.config, c2w, styles, chunk=64)
   for k in range(3):
-    one = multistyle.render_styles(scene, run.params, run.config, c2w, styles[k:k + 1], chunk=64)
+    one = views.render_styles(scene, run.params, run.config, c2w, styles[k:k + 1], chunk=64)
     for key in ("rgb", "depth", "accumulation"):
       np.testing.assert_allclose(sweep[key][k], one[key][0], rtol=1e-4, atol=1e-5)
   assert np.array_equal(blend(a, b, 0.0), a) and np.array_equal(blend(a, b, 1.0), b)
-  at0 = multistyle.render_styles(scene, run.params, run.config, c2w, blend(a, b, 0.0), chunk=64)
-  at1 = multistyle.render_styles(scene, run.params, run.config, c2w, blend(a, b, 1.0), chunk=64)
-  ends = multistyle.render_styles(scene, run.params, run.config, c2w, np.stack([a, b]), chunk=64)
+  at0 = views.render_styles(scene, run.params, run.config, c2w, blend(a, b, 0.0), chunk=64)
+  at1 = views.render_styles(scene, run.params, run.config, c2w, blend(a, b, 1.0), chunk=64)
+  ends = views.render_styles(scene, run.params, run.config, c2w, np.stack([a, b]), chunk=64)
   # Same style vectors, same batch shape: bit-identical images at both ends.
-  single_a = multistyle.render_styles(scene, run.params, run.config, c2w, a, chunk=64)
-  single_b = multistyle.render_styles(scene, run.params, run.config, c2w, b, chunk=64)
+  single_a = views.render_styles(scene, run.params, run.config, c2w, a, chunk=64)
+  single_b = views.render_styles(scene, run.params, run.config, c2w, b, chunk=64)
   assert np.array_equal(at0["rgb"], single_a["rgb"]) and np.array_equal(at1["rgb"], single_b["rgb"])
   np.testing.assert_allclose(ends["rgb"][0], single_a["rgb"][0], atol=1e-5)
   assert float(np.abs(single_a["rgb"] - single_b["rgb"]).max()) > 1e-3
@@ -472,7 +472,7 @@ def test_style_loss_pulls_the_heads_and_resumes_bit_identically(world, tmp_path)
       jax.random.PRNGKey(1), jnp.asarray(np.moveaxis(data.images[:, :4], 0, 3)),
       jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, scene)
   trainable, frozen = multistyle.split_frozen(multistyle.init_state(config, nerf_run.params).params)
-  field = multistyle.MultistyleField(config)
+  field = MultistyleField(config)
 
   def style_only(heads):
     return multistyle.patch_style_loss(field, multistyle.merge(heads, frozen), batch["patches"],

@@ -11,9 +11,8 @@ import pytest
 from msnerf_jax import rays as rays_lib
 from msnerf_jax import render
 from msnerf_jax.config import MultistyleConfig
-from msnerf_jax.models.multistyle import init_multistyle_params
-from msnerf_jax.models.nerf import init_nerf_params
-from msnerf_jax.train import multistyle, nerf
+from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
+from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from test_train_nerf import TINY
 
 # Results agree up to float summation order (matmuls of other sizes): rtol 1e-4.
@@ -35,7 +34,7 @@ def flat(rays, n=None):
 
 def nerf_setup():
   params = init_nerf_params(CONFIG, jax.random.PRNGKey(0))
-  return nerf.NerfField(CONFIG), params
+  return NerfField(CONFIG), params
 
 
 def style_setup(density_aware):
@@ -44,7 +43,7 @@ def style_setup(density_aware):
   params = init_multistyle_params(config, jax.random.PRNGKey(1),
                                   init_nerf_params(CONFIG, jax.random.PRNGKey(0)))
   styles = jax.random.normal(jax.random.PRNGKey(2), (3, 16))
-  return multistyle.MultistyleField(config), params, styles
+  return MultistyleField(config), params, styles
 
 
 def test_chunked_padded_image_equals_one_call():

@@ -205,22 +205,23 @@ def cmd_eval(args):
   from msnerf_jax import video
   from msnerf_jax.data.images import atomic_write_bytes
   from msnerf_jax.data.stylized import load_stylized
-  from msnerf_jax.train import multistyle
+  from msnerf_jax.evaluate import evaluate_multistyle
+  from msnerf_jax.views import render_styles
   run, scene = load_run_and_scene(args.run, "multistyle")
   stylized = load_stylized(run.record["stylized"])
   if list(stylized.names) != list(run.record["styles"]):
     raise UserError(f"{run.record['stylized']}: styles {stylized.names} differ from the run's "
                     f"{run.record['styles']}")
   t0 = time.time()
-  rows, means = multistyle.evaluate(scene, stylized, run.params, run.config, args.split,
+  rows, means = evaluate_multistyle(scene, stylized, run.params, run.config, args.split,
                                     args.chunk)
   out_dir = os.path.join(args.run, f"eval_{args.split}")
   result = {"step": run.step, "split": args.split, "means": means, "views": rows}
   atomic_write_bytes(os.path.join(out_dir, "metrics.json"), json.dumps(result, indent=2).encode())
   # One figure: a held-out view, target above render, one column per style.
   i = scene.split(args.split)[0]
-  out = multistyle.render_styles(scene, run.params, run.config, scene.c2w[i], stylized.vectors,
-                                 args.chunk)
+  out = render_styles(scene, run.params, run.config, scene.c2w[i], stylized.vectors,
+                      args.chunk)
   figure = video.write_grid(os.path.join(out_dir, "targets_vs_renders.png"),
                             [list(stylized.images[:, i] / 255.0), list(out["rgb"])])
   print(f"{'style':<28} {'PSNR':>7} {'SSIM':>7}")
@@ -238,14 +239,13 @@ def cmd_render(args):
   from msnerf_jax import style_videos
   from msnerf_jax import styles as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
-  from msnerf_jax.runs import read_run_file
-  from msnerf_jax.train import multistyle
+  from msnerf_jax.runs import read_run_file, style_vectors
   if read_run_file(args.run)["kind"] == "nerf":
     return nerf_cli.cmd_render(args)
   styles_lib.check_unit("--t", args.t)
   styles_lib.check_unit("--strength", args.strength)
   run, scene = load_run_and_scene(args.run, "multistyle")
-  vectors = multistyle.style_vectors(run)
+  vectors = style_vectors(run)
   cache = {}
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
                                              args.t, args.strength)

@@ -141,10 +141,10 @@ def _load(run_dir):
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.images import atomic_write_bytes, write_image
-  from msnerf_jax.train import nerf
+  from msnerf_jax.evaluate import evaluate_nerf
   run, scene = _load(args.run)
   t0 = time.time()
-  rows, mean, renders = nerf.evaluate(scene, run.params, run.config, args.split, args.chunk)
+  rows, mean, renders = evaluate_nerf(scene, run.params, run.config, args.split, args.chunk)
   out_dir = os.path.join(args.run, f"eval_{args.split}")
   for row, out in zip(rows, renders):
     write_image(os.path.join(out_dir, os.path.splitext(row["view"])[0] + ".png"), out["rgb"])
@@ -172,14 +172,14 @@ def cmd_render(args):
   # pylint: disable=g-import-not-at-top
   from tqdm.auto import tqdm
   from msnerf_jax import video
-  from msnerf_jax.train import nerf
+  from msnerf_jax.views import render_view
   run, scene = _load(args.run)
   poses = path_poses(scene, args.frames)
   stem = output_stem(args.out)
   t0 = time.time()
   frames, depths = [], []
   for c2w in tqdm(poses, desc="rendering", dynamic_ncols=True):
-    out = nerf.render_view(scene, run.params, run.config, c2w, args.chunk)
+    out = render_view(scene, run.params, run.config, c2w, args.chunk)
     frames.append(out["rgb"])
     depths.append(out)
   # One depth scale for the whole video.

@@ -8,9 +8,12 @@ concatenated with the trunk's last point layer, feeds a new density MLP (2W -> W
 The style vector is constant over a ray, so everything that depends only on the style runs
 once per style (`codes`), including the style half of each head's first layer: a Dense over
 `concat([x, code])` is `x @ K_x + (code @ K_code + b)`, and the bracket is per style.
+
+`MultistyleField` is the model as the conditioned field the renderer (msnerf_jax.render) draws.
 """
 
-from typing import Dict, Optional, Sequence
+import dataclasses
+from typing import Any, Dict, Optional, Sequence
 
 import chex
 import flax.linen as nn
@@ -143,6 +146,21 @@ def multistyle_mlp(config) -> MultiStyleMLP:
                        rgb_extra_layers=config.rgb_extra_layers,
                        density_extra_layers=config.density_extra_layers,
                        normalize_styles=config.normalize_styles)
+
+
+@dataclasses.dataclass(frozen=True)
+class MultistyleField:
+  """The style field of a MultistyleConfig as a hashable value (a static jit argument)."""
+  config: Any  # MultistyleConfig
+
+  def codes(self, params, styles):
+    """Style MLP outputs, once per style: styles [M, 1024] -> {"rgb": [M, W/2], ...}."""
+    model = multistyle_mlp(self.config)
+    return model.apply({"params": params}, styles, method=model.codes)
+
+  def __call__(self, params, points, viewdirs, codes):
+    """points [R, S, 3] or [M, R, S, 3] -> rgb [M, R, S, 3], raw sigma (see MultiStyleMLP)."""
+    return multistyle_mlp(self.config).apply({"params": params}, points, viewdirs, codes)
 
 
 def init_multistyle_params(config, key: jax.Array,

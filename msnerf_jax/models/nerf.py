@@ -1,6 +1,8 @@
-"""The NeRF MLP: a `trunk` (points -> density and view features) and an `rgb` layer."""
+"""The NeRF MLP: a `trunk` (points -> density and view features) and an `rgb` layer; and
+`NerfField`, the MLP as the field the renderer (msnerf_jax.render) draws."""
 
-from typing import Dict, Sequence, Tuple
+import dataclasses
+from typing import Any, Dict, Sequence, Tuple
 
 import flax.linen as nn
 import jax
@@ -96,6 +98,15 @@ def nerf_trunk(config) -> NerfTrunk:
 def nerf_mlp(config) -> NerfMLP:
   """The MLP of a NerfConfig."""
   return NerfMLP(trunk=nerf_trunk(config))
+
+
+@dataclasses.dataclass(frozen=True)
+class NerfField:
+  """The radiance field of a NerfConfig as a hashable callable (a static jit argument)."""
+  config: Any  # NerfConfig
+
+  def __call__(self, params, points, viewdirs):
+    return nerf_mlp(self.config).apply({"params": params}, points, viewdirs)
 
 
 def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:

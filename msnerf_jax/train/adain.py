@@ -23,6 +23,8 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
+from msnerf_jax.train import loop as loop_lib
+from msnerf_jax.train import state as state_lib
 
 KIND = "adain"
 
@@ -116,6 +118,25 @@ class BatchLoader:
   def close(self):
     self._stop.set()
     self._thread.join(timeout=5)
+
+
+class PrefetchedBatches:
+  """The loop's batch function: step -> (content, style) of that step, from a BatchLoader
+  started at the first step asked for (where the run resumes) and running to config.steps."""
+
+  def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig):
+    self._args = (content_pools, style_pools, config)
+    self._loader = None
+
+  def __call__(self, step: int) -> Tuple[np.ndarray, np.ndarray]:
+    if self._loader is None:
+      content_pools, style_pools, config = self._args
+      self._loader = BatchLoader(content_pools, style_pools, config, step, config.steps)
+    return self._loader.next()
+
+  def close(self):
+    if self._loader is not None:
+      self._loader.close()
 
 
 # ----------------------------------------------------------------------------- losses and step
@@ -228,7 +249,7 @@ def collect_content(content_dirs: Sequence[str], holdout_every: int) -> Tuple[Li
 
 def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
           run_dir: str, progress: bool = True, log=print) -> TrainResult:
-  """Trains (or resumes) an AdaIN decoder in `run_dir`.
+  """Trains (or resumes) an AdaIN decoder in `run_dir`, on the shared loop (train.loop.fit).
 
   Writes run.json, checkpoints/ (orbax, params + Adam state + step), samples/step_N.png
   (content | style | output) every `sample_every` steps, and holdout.txt (the held-out
@@ -257,83 +278,83 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   resumed = runs_lib.prepare_run_dir(run_dir, KIND, record)
   images_lib.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
                                 "".join(p + "\n" for p in record["holdout"]).encode())
-  optimizer = make_optimizer(config)
-  params = decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
-  opt_state = optimizer.init(params)
   checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
-  start = 0
-  if resumed and checkpoints.latest_step() is not None:
-    template = {"params": params, "opt_state": opt_state, "step": np.asarray(0, np.int64)}
-    restored = checkpoints.restore(template)
-    params, opt_state, start = restored["params"], restored["opt_state"], int(restored["step"])
+  start = checkpoints.latest_step() if resumed else None
+  checkpoints.close()
+  if start is not None:
     log(f"resuming {run_dir} from step {start}")
-  last_good = start if (resumed and checkpoints.latest_step() is not None) else None
-  if start >= config.steps:
-    checkpoints.close()
-    log(f"{run_dir}: already trained to step {start} (>= --steps {config.steps})")
-    return TrainResult(run_dir, start, {}, 0.0, 0.0)
+    if start >= config.steps:
+      log(f"{run_dir}: already trained to step {start} (>= --steps {config.steps})")
+      return TrainResult(run_dir, start, {}, 0.0, 0.0)
 
-  train_step = make_train_step(step_config(config))
   stylize = make_stylize_fn(config.upsample)
   sample_rng = np.random.default_rng([config.seed, 10**9])
   n_samples = min(4, config.batch)
   sample_content = random_crops(sample_rng, content_pools, n_samples, config.size)
   sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
   os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
+  train_step = make_train_step(step_config(config))
+  # Shared with the loop's hooks: the last good checkpoint, the latest state, the last step
+  # that passed the checks and its metrics, the throughput clock (not the compiling step).
+  last_good, latest, done, metrics = start, None, start or 0, {}
+  timed_from, timed_steps = None, 0
 
-  def save(step):
-    nonlocal last_good
+  def step_fn(state, batch):
+    nonlocal latest
+    params, opt_state, m = train_step(state.params, state.opt_state, encoder_params, *batch)
+    latest = state.replace(step=np.asarray(state.step + 1, np.int64), params=params,
+                           opt_state=opt_state)
+    return latest, m
+
+  def check_finite(params, step):
     if not _all_finite(params):
       raise UserError(f"{run_dir}: parameters became NaN/inf by step {step}; stopped, "
                       f"last good checkpoint: step {last_good}")
-    checkpoints.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
-    last_good = step
 
-  def write_sample(step):
-    out = np.asarray(stylize(params, encoder_params, sample_content, sample_style))
-    path = os.path.join(run_dir, "samples", f"step_{step:07d}.png")
-    images_lib.write_image(path, sample_grid(sample_content, sample_style, out))
-    return path
+  def on_step(step, state, m):  # before the loop's loss check and this step's checkpoint.
+    nonlocal last_good, done, metrics, timed_from, timed_steps
+    values = {k: float(v) for k, v in m.items()}
+    if not all(math.isfinite(v) for v in values.values()):
+      where = os.path.abspath(os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR))
+      raise UserError(f"step {step}: loss is {values['loss']} (NaN/inf); stopped; last good "
+                      f"checkpoint: {'step ' + str(last_good) if last_good is not None else 'none'} "
+                      f"in {where} (lower --lr?)")
+    done, metrics = step, values
+    if timed_from is None:
+      timed_from = time.time()
+    else:
+      timed_steps += 1
+    if step % config.sample_every == 0 or step == config.steps:
+      out = np.asarray(stylize(state.params, encoder_params, sample_content, sample_style))
+      images_lib.write_image(os.path.join(run_dir, "samples", f"step_{step:07d}.png"),
+                             sample_grid(sample_content, sample_style, out))
+    if step % config.checkpoint_every == 0 or step == config.steps:  # the loop saves it next.
+      check_finite(state.params, step)
+      last_good = step
 
-  loader = BatchLoader(content_pools, style_pools, config, start, config.steps)
-  bar = None
-  if progress:
-    from tqdm import tqdm  # pylint: disable=g-import-not-at-top
-    bar = tqdm(total=config.steps, initial=start, desc="adain", unit="step", dynamic_ncols=True)
-  metrics: Dict[str, float] = {}
-  t0, timed_from, timed_steps = time.time(), None, 0
-  step = done = start
+  params = decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
+  state = state_lib.create_state(params, make_optimizer(config))
+  state = state.replace(step=np.asarray(0, np.int64))  # the step as AdaIN checkpoints hold it.
+  batches = PrefetchedBatches(content_pools, style_pools, config)
   try:
-    for step in range(start + 1, config.steps + 1):
-      content, style = loader.next()
-      params, opt_state, m = train_step(params, opt_state, encoder_params, content, style)
-      metrics = {k: float(v) for k, v in m.items()}
-      if not all(math.isfinite(v) for v in metrics.values()):
-        raise UserError(f"step {step}: loss is {metrics['loss']} (NaN/inf); stopped; last good "
-                        f"checkpoint: {'step ' + str(last_good) if last_good is not None else 'none'} "
-                        f"in {checkpoints.directory} (lower --lr?)")
-      done = step
-      if timed_from is None:
-        timed_from = time.time()  # throughput excludes the first (compiling) step.
-      else:
-        timed_steps += 1
-      if bar is not None:
-        bar.update(1)
-        bar.set_postfix({k: f"{v:.3f}" for k, v in metrics.items()})
-      if step % config.sample_every == 0 or step == config.steps:
-        write_sample(step)
-      if step % config.checkpoint_every == 0 or step == config.steps:
-        save(step)
-  except KeyboardInterrupt:
-    if done > start and all(math.isfinite(v) for v in metrics.values()):
-      save(done)
+    summary = loop_lib.fit(state, step_fn, batches, run_dir=run_dir, steps=config.steps,
+                           checkpoint_every=config.checkpoint_every,
+                           keep_checkpoints=config.keep_checkpoints, n_devices=1, desc="adain",
+                           progress=progress, on_step=on_step, shown=("content", "style"),
+                           history=False)
+  except KeyboardInterrupt:  # keep what was trained since the last checkpoint.
+    if done > (start or 0):
+      check_finite(latest.params, done)
+      checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
+      try:
+        checkpoints.save(done, state_lib.checkpoint_tree(
+            latest.replace(step=np.asarray(done, np.int64))))
+      finally:
+        checkpoints.close()
     raise
   finally:
-    loader.close()
-    if bar is not None:
-      bar.close()
-    checkpoints.close()
-  seconds = time.time() - t0
+    batches.close()
+  seconds = summary["seconds"]
   rate = timed_steps * config.batch / (time.time() - timed_from) if timed_steps else 0.0
   summary = {"step": done, "metrics": metrics, "seconds": round(seconds, 1),
              "images_per_second": round(rate, 3)}

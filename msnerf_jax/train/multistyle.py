@@ -5,12 +5,11 @@ style loss on rendered patches), Adam on the heads."""
 import dataclasses
 import functools
 import os
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import runs as runs_lib
@@ -18,34 +17,17 @@ from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig
-from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, check_views
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.models.multistyle import init_multistyle_params, multistyle_mlp
+from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
 
 KIND = "multistyle"
 FROZEN = "trunk"
-STYLE_VECTORS = "style_vectors.npy"
-
-
-@dataclasses.dataclass(frozen=True)
-class MultistyleField:
-  """The style field of a MultistyleConfig as a hashable value (a static jit argument)."""
-  config: MultistyleConfig
-
-  def codes(self, params, styles):
-    """Style MLP outputs, once per style: styles [M, 1024] -> {"rgb": [M, W/2], ...}."""
-    model = multistyle_mlp(self.config)
-    return model.apply({"params": params}, styles, method=model.codes)
-
-  def __call__(self, params, points, viewdirs, codes):
-    """points [R, S, 3] or [M, R, S, 3] -> rgb [M, R, S, 3], raw sigma (see MultiStyleMLP)."""
-    return multistyle_mlp(self.config).apply({"params": params}, points, viewdirs, codes)
 
 
 # ----------------------------------------------------------------------------- frozen trunk
@@ -251,7 +233,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
       "styles": list(stylized.names)})
-  save_style_vectors(run_dir, stylized.vectors)
+  runs_lib.save_style_vectors(run_dir, stylized.vectors)
   train_idx = stylized.splits["train"]
   # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.
   images = jnp.asarray(np.moveaxis(stylized.images[:, train_idx], 0, 3))
@@ -267,49 +249,3 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
       keep_checkpoints=config.keep_checkpoints, n_devices=n_devices, desc="multistyle train",
       progress=progress, callback=callback)
-
-
-def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
-  images_lib.write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
-
-
-def style_vectors(run: runs_lib.Run) -> Dict[str, np.ndarray]:
-  """name -> [1024] vector of every training style of a multi-style run."""
-  names = run.record.get("styles", [])
-  vectors = images_lib.read_npy(os.path.join(run.run_dir, STYLE_VECTORS),
-                                (len(names), run.config.style_dim))
-  return dict(zip(names, vectors))
-
-
-# ----------------------------------------------------------------------------- rendering
-
-
-def render_styles(scene: Scene, params, config: MultistyleConfig, c2w: np.ndarray,
-                  styles: np.ndarray, chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
-  """One camera in K styles at once (a style sweep): rgb [K, H, W, 3], depth [K, H, W] ..."""
-  styles = jnp.asarray(np.atleast_2d(styles), jnp.float32)
-  return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(c2w),
-                                 config.nerf, scene.white_background, chunk, styles=styles)
-
-
-def evaluate(scene: Scene, stylized: StylizedData, params, config: MultistyleConfig,
-             split: str = "val", chunk: Optional[int] = None, progress: bool = True
-             ) -> Tuple[List[Dict[str, Any]], Dict[str, Dict[str, float]]]:
-  """Per-style PSNR/SSIM on the held-out stylized views of a split.
-
-  Returns (rows: one per (style, view), means: style -> {"psnr", "ssim"} plus "mean").
-  """
-  idx = scene.split(split)
-  rows = []
-  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
-    out = render_styles(scene, params, config, scene.c2w[i], stylized.vectors, chunk)
-    for m, name in enumerate(stylized.names):
-      target = stylized.images[m, i].astype(np.float32) / 255.0
-      rows.append({"style": name, "view": int(i),
-                   "psnr": float(metrics.psnr(out["rgb"][m], target)),
-                   "ssim": float(metrics.ssim(out["rgb"][m], target))})
-  means = {}
-  for name in stylized.names + ["mean"]:
-    mine = [r for r in rows if name in ("mean", r["style"])]
-    means[name] = {k: float(np.mean([r[k] for r in mine])) for k in ("psnr", "ssim")}
-  return rows, means

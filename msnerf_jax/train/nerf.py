@@ -1,14 +1,10 @@
-"""Training and evaluating a vanilla NeRF, top to bottom: batch -> coarse/fine render -> MSE -> Adam."""
+"""Training a vanilla NeRF, top to bottom: batch -> coarse/fine render -> MSE -> Adam."""
 
-import dataclasses
 import functools
-import os
 from typing import Any, Callable, Dict, Optional
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import runs
 from msnerf_jax import config as config_lib
@@ -19,18 +15,9 @@ from msnerf_jax import render as render_lib
 from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
-from msnerf_jax.models.nerf import init_nerf_params, nerf_mlp
+from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
-
-
-@dataclasses.dataclass(frozen=True)
-class NerfField:
-  """The radiance field of a NerfConfig as a hashable callable (a static jit argument)."""
-  config: NerfConfig
-
-  def __call__(self, params, points, viewdirs):
-    return nerf_mlp(self.config).apply({"params": params}, points, viewdirs)
 
 
 # ----------------------------------------------------------------------------- batches
@@ -193,38 +180,3 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
                       checkpoint_every=config.checkpoint_every,
                       keep_checkpoints=config.keep_checkpoints, n_devices=n_devices,
                       desc="nerf train", progress=progress, callback=callback)
-
-
-# ----------------------------------------------------------------------------- evaluation
-
-
-def render_view(scene: Scene, params, config: NerfConfig, c2w: np.ndarray,
-                chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
-  """Renders one camera of the scene: rgb [H, W, 3], depth, disparity, accumulation [H, W]."""
-  return render_lib.render_image(NerfField(config), params, scene.camera_rays(c2w), config,
-                                 scene.white_background, chunk)
-
-
-def evaluate(scene: Scene, params, config: NerfConfig, split: str = "val",
-             chunk: Optional[int] = None, progress: bool = True):
-  """PSNR/SSIM of the fine renders on a split. Returns (per-view list, mean dict, renders).
-
-  On scenes with alpha, each view also gets the mean rendered opacity on its ground-truth
-  empty space and on its object (metrics.mask_opacity: "opacity_background",
-  "opacity_object"): white fog over a white background costs no PSNR, but shows there.
-  """
-  idx = scene.split(split)
-  rows, renders = [], []
-  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
-    out = render_view(scene, params, config, scene.c2w[i], chunk)
-    target = scene.images[i]
-    row = {"view": os.path.basename(scene.image_paths[i]),
-           "psnr": float(metrics.psnr(out["rgb"], target)),
-           "ssim": float(metrics.ssim(out["rgb"], target))}
-    if scene.alphas is not None:
-      opacity = metrics.mask_opacity(out["accumulation"], scene.alphas[i])
-      row.update({f"opacity_{k}": v for k, v in opacity.items()})
-    rows.append(row)
-    renders.append(out)
-  mean = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0] if k != "view"}
-  return rows, mean, renders

@@ -1,0 +1,28 @@
+"""Whole camera views of a trained run's scene: a NeRF's view, and a multi-style model's view
+in K styles at once, each rendered in chunks by the one renderer (msnerf_jax.render)."""
+
+from typing import Dict, Optional
+
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax import render as render_lib
+from msnerf_jax.config import MultistyleConfig, NerfConfig
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.models.multistyle import MultistyleField
+from msnerf_jax.models.nerf import NerfField
+
+
+def render_view(scene: Scene, params, config: NerfConfig, c2w: np.ndarray,
+                chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """Renders one camera of the scene: rgb [H, W, 3], depth, disparity, accumulation [H, W]."""
+  return render_lib.render_image(NerfField(config), params, scene.camera_rays(c2w), config,
+                                 scene.white_background, chunk)
+
+
+def render_styles(scene: Scene, params, config: MultistyleConfig, c2w: np.ndarray,
+                  styles: np.ndarray, chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """One camera in K styles at once (a style sweep): rgb [K, H, W, 3], depth [K, H, W] ..."""
+  styles = jnp.asarray(np.atleast_2d(styles), jnp.float32)
+  return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(c2w),
+                                 config.nerf, scene.white_background, chunk, styles=styles)
