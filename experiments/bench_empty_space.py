@@ -38,13 +38,14 @@ from msnerf_jax.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.evaluate import evaluate_nerf
+from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.train import nerf
 from msnerf_jax.views import render_view
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
 def _weight_stats(config, params, rays):
-  out = render_lib.render_rays(nerf.NerfField(config), params, rays, config)["fine"]
+  out = render_lib.render_rays(NerfField(config), params, rays, config)["fine"]
   w, z = out["weights"], out["z_vals"]
   dist = regularizers.distortion(w, z, rays["near"], rays["far"])
   cdf = jnp.cumsum(w, -1) / jnp.maximum(jnp.sum(w, -1, keepdims=True), 1e-10)
