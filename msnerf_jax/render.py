@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax import sampling
-from msnerf_jax.rendering import volume_render
+from msnerf_jax.volume_rendering import volume_render
 
 # field_fn(params, points [R, S, 3], viewdirs [R, S, 3]) -> (rgb [..., R, S, 3], raw sigma [R, S])
 FieldFn = Callable[..., tuple]
