@@ -26,8 +26,6 @@ HELP = {
     "style_hidden": "width of the style MLP's first hidden layer",
     "style_hidden2": "width of the style MLP's second hidden layer",
     "normalize_styles": "standardise each style vector before the style MLPs",
-    # AdainConfig
-    "encoder": "the frozen encoder the decoder is trained against",
     # DataConfig
     "format": "scene format: auto, blender or llff",
     "llff_holdout": "LLFF: every n-th image is held out for val/test",

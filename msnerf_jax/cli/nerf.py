@@ -10,7 +10,8 @@ import numpy as np
 from msnerf_jax import config as config_lib
 from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
                                    print_training_summary)
-from msnerf_jax.cli.config_args import add_config_arguments, add_config_option, config_overrides
+from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
+                                        config_overrides, start_config)
 from msnerf_jax.errors import UserError
 
 
@@ -92,7 +93,6 @@ def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.scene import load_scene
   from msnerf_jax.train import nerf
-  from msnerf_jax.runs import load_config
   data_config = config_lib.override(
       config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale),
       **config_overrides(args, config_lib.DataConfig))
@@ -118,11 +118,8 @@ def cmd_train(args):
     from msnerf_jax.data.stylized import style_views
     style = {"stylized": os.path.abspath(args.stylized), "name": args.style}
     scene = style_views(style["stylized"], args.style, scene)
-  overrides = config_overrides(args, config_lib.NerfConfig)
-  if args.config is not None:
-    config = config_lib.override(load_config(args.config, "nerf"), **overrides)
-  else:
-    config = config_lib.nerf_preset(args.preset, data_config.format, **overrides)
+  config = start_config(args, "nerf", config_lib.nerf_preset(
+      args.preset, data_config.format, **config_overrides(args, config_lib.NerfConfig)))
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; "
         + (f"config of {args.config}" if args.config else f"preset {args.preset}")
