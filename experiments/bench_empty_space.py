@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import msnerf_jax
-from msnerf_jax import regularizers, render as render_lib, video
+from msnerf_jax import files, regularizers, render as render_lib, video
 from msnerf_jax.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
@@ -144,7 +144,7 @@ def main():
   figure = os.path.join(args.out, f"{args.scene}_{args.preset}_opacity.png")
   images_lib.write_image(figure, np.concatenate(rows_img, 0))
   out = os.path.join(args.out, f"{args.scene}_{args.preset}_bench.json")
-  images_lib.atomic_write_bytes(out, json.dumps(table, indent=1).encode())
+  files.atomic_write_bytes(out, json.dumps(table, indent=1).encode())
   print(f"# written {out}, {figure} (rows: {', '.join(variants)}; per view: render, "
         "opacity, depth)")
 

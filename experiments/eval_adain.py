@@ -29,6 +29,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from msnerf_jax import adain as adain_lib  # pylint: disable=g-import-not-at-top
 from msnerf_jax import stylize as stylize_lib
+from msnerf_jax import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
@@ -184,7 +185,7 @@ def main():
   images_lib.write_image(args.grid, grid)
   print(f"wrote {args.grid} (top row: styles; rows: held-out content | outputs)")
   if args.json:
-    images_lib.atomic_write_bytes(args.json, json.dumps(numbers, indent=2).encode())
+    files.atomic_write_bytes(args.json, json.dumps(numbers, indent=2).encode())
 
 
 if __name__ == "__main__":

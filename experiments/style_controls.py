@@ -34,6 +34,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # pylint: disable=g-import-not-at-top
 from msnerf_jax import evaluate, metrics, video, views
 from msnerf_jax import stylize as stylize_lib
+from msnerf_jax import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.models import vgg
@@ -126,8 +127,8 @@ def main():
   where = f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'CPU'}"
   md.append(f"\n{args.mode} on {args.run}, {args.views} views of {scene.width}x{scene.height}: "
             f"{seconds:.0f} s ({where})")
-  images_lib.atomic_write_bytes(os.path.join(args.out, "results.md"), "\n".join(md).encode())
-  images_lib.atomic_write_bytes(os.path.join(args.out, "results.json"),
+  files.atomic_write_bytes(os.path.join(args.out, "results.md"), "\n".join(md).encode())
+  files.atomic_write_bytes(os.path.join(args.out, "results.json"),
                                 json.dumps({"mode": args.mode, "styles": args.styles,
                                             "rows": rows, "seconds": seconds}, indent=2).encode())
   print("\n".join(md))

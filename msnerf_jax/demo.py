@@ -18,7 +18,7 @@ import numpy as np
 from PIL import Image
 
 from msnerf_jax.data.blender import pose_spherical
-from msnerf_jax.data.images import atomic_write_bytes
+from msnerf_jax.files import atomic_write_bytes
 
 CAMERA_ANGLE_X = 0.6911112070083618  # lego's horizontal field of view (about 39.6 degrees).
 RADIUS = 4.0
@@ -185,7 +185,7 @@ def write_scene(out_dir: str, size: int = 64, n_train: int = 40, n_val: int = 6,
 
   A scene already there with the same settings (scene.json) is kept as it is.
   """
-  from tqdm.auto import tqdm  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.progress import progress_bar  # pylint: disable=g-import-not-at-top
   settings = {"size": size, "n_train": n_train, "n_val": n_val, "seed": seed, "version": 1}
   marker = os.path.join(out_dir, "scene.json")
   if os.path.exists(marker):
@@ -196,7 +196,7 @@ def write_scene(out_dir: str, size: int = 64, n_train: int = 40, n_val: int = 6,
   poses = camera_poses(n_train, n_val, seed)
   jobs = [(split, k, c2w) for split in ("train", "val") for k, c2w in enumerate(poses[split])]
   frames = {"train": [], "val": []}
-  for split, k, c2w in tqdm(jobs, desc="demo scene", disable=not progress, leave=False):
+  for split, k, c2w in progress_bar(jobs, desc="demo scene", disable=not progress, leave=False):
     atomic_write_bytes(os.path.join(out_dir, split, f"r_{k}.png"),
                        _png(render_view(c2w, size, objects), "RGBA"))
     frames[split].append({"file_path": f"./{split}/r_{k}", "transform_matrix": c2w.tolist()})

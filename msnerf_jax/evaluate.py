@@ -26,10 +26,10 @@ import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
+from msnerf_jax import files
 from msnerf_jax import stylize as stylize_lib
 from msnerf_jax import video
 from msnerf_jax.config import MultistyleConfig, NerfConfig
@@ -40,6 +40,7 @@ from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
 from msnerf_jax.runs import load_run, scene_of, style_vectors
 from msnerf_jax.views import render_styles, render_view
+from msnerf_jax.progress import progress_bar
 
 def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
                   chunk: Optional[int] = None, progress: bool = True):
@@ -51,7 +52,7 @@ def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
   """
   idx = scene.split(split)
   rows, renders = [], []
-  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+  for i in progress_bar(idx, desc=f"eval {split}", disable=not progress, leave=False):
     out = render_view(scene, params, config, scene.c2w[i], chunk)
     target = scene.images[i]
     row = {"view": os.path.basename(scene.image_paths[i]),
@@ -75,7 +76,7 @@ def evaluate_multistyle(scene: Scene, stylized: StylizedData, params, config: Mu
   """
   idx = scene.split(split)
   rows = []
-  for i in tqdm(idx, desc=f"eval {split}", disable=not progress, leave=False):
+  for i in progress_bar(idx, desc=f"eval {split}", disable=not progress, leave=False):
     out = render_styles(scene, params, config, scene.c2w[i], stylized.vectors, chunk)
     for m, name in enumerate(stylized.names):
       target = stylized.images[m, i].astype(np.float32) / 255.0
@@ -191,14 +192,14 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
 
   # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
   base = [render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk)
-          for c2w in tqdm(poses, desc="NeRF path", disable=not progress, leave=False)]
+          for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
   # All styles in one sweep per view, for each multi-style run.
   stack = [np.stack([v[n] for n in names]) for v in vectors]
   swept = [[render_styles(scene, r.params, r.config, c2w, s, chunk)
-            for c2w in tqdm(poses, desc=f"{m} path", disable=not progress, leave=False)]
+            for c2w in progress_bar(poses, desc=f"{m} path", disable=not progress, leave=False)]
            for r, s, m in zip(runs, stack, methods)]
   rows, figure_rows = [], []
-  for m, name in enumerate(tqdm(names, desc="scoring styles", disable=not progress)):
+  for m, name in enumerate(progress_bar(names, desc="scoring styles", disable=not progress)):
     picture = images_lib.read_image(sources[name]["source"], max_side=1024)
     style = stylize_lib.cover_crop(picture, scene.height, scene.width)  # what distances use.
     per_frame = per_frame_adain(decoder, encoder, base, picture, sources[name]["alpha"],
@@ -209,7 +210,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
     if name in singles:
       single = singles[name]
       renders = [render_view(scene, single.params, single.config, c2w, chunk)
-                 for c2w in tqdm(poses, desc=f"single-style {name}", disable=not progress,
+                 for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
                                  leave=False)]
       candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))
     candidates.append(("adain-per-frame", per_frame, base))
@@ -234,7 +235,7 @@ def write_tables(rows: List[Dict[str, Any]], out_dir: str) -> List[str]:
   paths = [os.path.join(out_dir, f"results.{ext}") for ext in ("md", "csv", "json")]
   for path, text in zip(paths, ("\n".join(md) + "\n", buffer.getvalue(),
                                 json.dumps(rows, indent=2))):
-    images_lib.atomic_write_bytes(path, text.encode())
+    files.atomic_write_bytes(path, text.encode())
   return paths
 
 

@@ -28,6 +28,7 @@ from typing import Any, Callable, Dict, Optional, Sequence
 import numpy as np
 
 from msnerf_jax import config as config_lib
+from msnerf_jax import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 
@@ -76,7 +77,7 @@ def _load_record(out: str) -> Dict[str, Any]:
 
 
 def _save_record(out: str, record: Dict[str, Any]) -> None:
-  images_lib.write_json(os.path.join(out, RECORD), record)
+  files.write_json(os.path.join(out, RECORD), record)
 
 
 class _Scene:
@@ -109,8 +110,8 @@ def _inputs(out: str, scene: _Scene, styles: Sequence[str]):
   for path in styles:
     target = os.path.join(style_dir, os.path.basename(path))
     if not os.path.exists(target):
-      shutil.copyfile(path, target + ".tmp")
-      os.replace(target + ".tmp", target)
+      with files.atomic_path(target) as tmp:
+        shutil.copyfile(path, tmp)
   return content_dir, style_dir
 
 
@@ -186,7 +187,7 @@ RENDER_FILES = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png"
 
 def _run_renders(out, s: Settings, progress):
   # pylint: disable=g-import-not-at-top
-  from tqdm.auto import tqdm
+  from msnerf_jax.progress import progress_bar
   from msnerf_jax import style_videos
   from msnerf_jax import styles as styles_lib
   from msnerf_jax import video
@@ -199,20 +200,20 @@ def _run_renders(out, s: Settings, progress):
   render = style_videos.style_renderer(run, scene, s.chunk or None)
   # All styles at once per camera (one trunk pass): the side-by-side video and the grid.
   sweeps = [render(c2w, list(vectors.values()))
-            for c2w in tqdm(poses, desc="render styles", disable=not progress)]
+            for c2w in progress_bar(poses, desc="render styles", disable=not progress)]
   gap = np.ones((scene.height, 2, 3), np.float32)
   tiles = [np.concatenate([x for m in range(len(names)) for x in ([gap] if m else []) + [sw[m]]], 1)
            for sw in sweeps]
   written = video.write_videos(os.path.join(folder, "styles"), tiles, s.fps)
   morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
   path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
-  frames = [render(c2w, [v])[0] for c2w, v in tqdm(list(zip(poses, path)), desc="render morph",
+  frames = [render(c2w, [v])[0] for c2w, v in progress_bar(list(zip(poses, path)), desc="render morph",
                                                      disable=not progress)]
   written += video.write_videos(os.path.join(folder, "morph"), frames, s.fps)
   views = np.linspace(0, len(poses), max(1, s.grid_views) + 1)[:-1].round().astype(int)
   grid_rows = [[sweeps[v][m] for v in views] for m in range(len(names))]
   written.append(video.write_grid(os.path.join(folder, "grid.png"), grid_rows))
-  images_lib.atomic_write_bytes(os.path.join(folder, "grid_rows.txt"),
+  files.atomic_write_bytes(os.path.join(folder, "grid_rows.txt"),
                                 "".join(n + "\n" for n in names).encode())
   return written
 
@@ -323,9 +324,9 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
   summary = {"out": os.path.abspath(out), "data": data, "styles": styles,
              "seconds": round(time.time() - t_all, 1), "stages": results,
              "settings": dataclasses.asdict(s)}
-  images_lib.atomic_write_bytes(os.path.join(out, "summary.json"),
+  files.atomic_write_bytes(os.path.join(out, "summary.json"),
                                 json.dumps(summary, indent=2).encode())
-  images_lib.atomic_write_bytes(os.path.join(out, "summary.txt"), format_summary(summary).encode())
+  files.atomic_write_bytes(os.path.join(out, "summary.txt"), format_summary(summary).encode())
   return summary
 
 

@@ -11,7 +11,8 @@ import numpy as np
 
 from msnerf_jax import config as config_lib
 from msnerf_jax.checkpoint import CHECKPOINT_DIR, Checkpoints
-from msnerf_jax.data.images import read_json, read_npy, write_json, write_npy
+from msnerf_jax.data.images import read_json, read_npy
+from msnerf_jax.files import write_json, write_npy
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
 from msnerf_jax.data.stylized import style_views
 from msnerf_jax.errors import UserError

@@ -8,7 +8,6 @@ import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import config as config_lib
@@ -19,6 +18,7 @@ from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
+from msnerf_jax.progress import progress_bar
 
 # (mean, std) [1, C] channel statistics.
 Stats = Tuple[Any, Any]
@@ -166,7 +166,7 @@ def scene_content_stats(encoder_params: Any, views: Sequence[np.ndarray], scale:
   images_lib.check_scale(scale)
   sums = squares = 0.0
   count = 0
-  for view in tqdm(views, desc="scene statistics", disable=not progress, leave=False):
+  for view in progress_bar(views, desc="scene statistics", disable=not progress, leave=False):
     h, w = view.shape[:2]
     big = pad_to_multiple(images_lib.resize(np.asarray(view, np.float32), h * scale, w * scale))
     s, q, n = _relu4_1_sums(encoder_params, jnp.asarray(big[None]))

@@ -1,12 +1,12 @@
 """Writing what people look at: MP4/GIF videos, image grids, depth maps (atomic writes)."""
 
 import os
-import tempfile
 from typing import List, Optional, Sequence
 
 import imageio.v2 as imageio
 import numpy as np
 
+from msnerf_jax import files
 from msnerf_jax.data.images import to_uint8, write_image
 from msnerf_jax.errors import UserError
 
@@ -34,26 +34,20 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[
   if not frames:
     raise UserError(f"{path}: no frames to write")
   ext = os.path.splitext(path)[1].lower()
-  folder = os.path.dirname(os.path.abspath(path))
-  os.makedirs(folder, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=ext)
-  os.close(fd)
-  try:
+  if ext not in (".gif", ".mp4"):
+    raise UserError(f"{path}: video must end in .mp4 or .gif")
+  h, w = frames[0].shape[:2]
+  # A GIF stores about a byte a pixel; the MP4 is far smaller.
+  with files.atomic_path(path, needed=len(frames) * h * w if ext == ".gif" else None) as tmp:
     if ext == ".gif":
       imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps, loop=0)
-    elif ext == ".mp4":
+    else:
       # Even sizes for yuv420p; macro_block_size=1 keeps odd sizes from being resized.
       frames = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]
       with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8,
                               macro_block_size=1, pixelformat="yuv420p") as writer:
         for f in frames:
           writer.append_data(f)
-    else:
-      raise UserError(f"{path}: video must end in .mp4 or .gif")
-    os.replace(tmp, path)
-  finally:
-    if os.path.exists(tmp):
-      os.remove(tmp)
   return [path]
 
 

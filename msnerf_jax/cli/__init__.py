@@ -1,13 +1,15 @@
 """The `msnerf` command: one verb per stage. Each verb only parses and calls the library."""
 
 import argparse
+import os
 import sys
 from typing import List, Optional
 
 from msnerf_jax import __version__
+from msnerf_jax import files
 from msnerf_jax.cli.config_args import Formatter as _Formatter
 from msnerf_jax.cli.config_args import given_options
-from msnerf_jax.errors import UserError
+from msnerf_jax.errors import Interrupted, UserError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,16 +37,30 @@ def main(argv: Optional[List[str]] = None) -> int:
   args = parser.parse_args(argv)
   args.given = given_options(parser, argv)  # what --config does not override
   try:
+    sys.stdout.reconfigure(line_buffering=True)  # lines in order with stderr in a log
+  except (AttributeError, ValueError):
+    pass
+  try:
     args.func(args)
-  except UserError as e:
+  except UserError as e:  # bad input, and the machine's faults (DiskError)
     print(f"msnerf: error: {e}", file=sys.stderr)
     return 2
+  except Interrupted as e:
+    print(f"msnerf: {e}", file=sys.stderr)
+    return 128 + e.signum
   except KeyboardInterrupt:
     print("msnerf: interrupted; re-run the same command to resume", file=sys.stderr)
     return 130
+  except BrokenPipeError:  # `msnerf ... | head -1`: the reader left; no traceback
+    _silence_stdout()
+    return 141
   except OSError as e:  # permission denied, disk full ... on a file the user named
-    where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-    print(f"msnerf: error: {where}{e.strerror or e}", file=sys.stderr)
+    where = getattr(e, "filename", None)
+    fault = files.disk_error(where, e) if where else None
+    if fault is not None:
+      print(f"msnerf: error: {fault}", file=sys.stderr)
+    else:
+      print(f"msnerf: error: {where + ': ' if where else ''}{e.strerror or e}", file=sys.stderr)
     return 2
   except MemoryError:
     print("msnerf: error: out of memory; lower --chunk/--batch or the resolution", file=sys.stderr)
@@ -52,8 +68,25 @@ def main(argv: Optional[List[str]] = None) -> int:
   return 0
 
 
+def _silence_stdout() -> None:
+  """Points stdout at /dev/null so the interpreter's final flush into a closed pipe does not
+  print 'Exception ignored ... BrokenPipeError'."""
+  try:
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+  except (OSError, ValueError, AttributeError):
+    pass
+
+
 def run() -> None:
-  sys.exit(main())
+  try:
+    code = main()
+    sys.stdout.flush()
+  except BrokenPipeError:
+    _silence_stdout()
+    code = 141
+  sys.exit(code)
 
 
 if __name__ == "__main__":

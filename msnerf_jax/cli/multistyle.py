@@ -203,7 +203,7 @@ def cmd_train(args):
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import video
-  from msnerf_jax.data.images import atomic_write_bytes
+  from msnerf_jax.files import atomic_write_bytes
   from msnerf_jax.data.stylized import load_stylized
   from msnerf_jax.evaluate import evaluate_multistyle
   from msnerf_jax.views import render_styles

@@ -137,7 +137,8 @@ def _load(run_dir):
 
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.data.images import atomic_write_bytes, write_image
+  from msnerf_jax.data.images import write_image
+  from msnerf_jax.files import atomic_write_bytes
   from msnerf_jax.evaluate import evaluate_nerf
   run, scene = _load(args.run)
   t0 = time.time()
@@ -167,7 +168,7 @@ def cmd_eval(args):
 
 def cmd_render(args):
   # pylint: disable=g-import-not-at-top
-  from tqdm.auto import tqdm
+  from msnerf_jax.progress import progress_bar
   from msnerf_jax import video
   from msnerf_jax.views import render_view
   run, scene = _load(args.run)
@@ -175,7 +176,7 @@ def cmd_render(args):
   stem = output_stem(args.out)
   t0 = time.time()
   frames, depths = [], []
-  for c2w in tqdm(poses, desc="rendering", dynamic_ncols=True):
+  for c2w in progress_bar(poses, desc="rendering"):
     out = render_view(scene, run.params, run.config, c2w, args.chunk)
     frames.append(out["rgb"])
     depths.append(out)

@@ -3,11 +3,11 @@
 import os
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene, check_poses
 from msnerf_jax.errors import UserError
+from msnerf_jax.progress import progress_bar
 
 SPLITS = ("train", "val", "test")
 NEAR, FAR = 2.0, 6.0
@@ -62,7 +62,7 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
     meta = _read_transforms(tpath)
     angle = meta["camera_angle_x"] if angle is None else angle
     start = len(all_images)
-    for i, frame in enumerate(tqdm(meta["frames"], desc=f"loading {split}", leave=False,
+    for i, frame in enumerate(progress_bar(meta["frames"], desc=f"loading {split}", leave=False,
                                    disable=None)):
       fp = frame["file_path"]
       if not isinstance(fp, str):

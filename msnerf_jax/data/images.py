@@ -2,13 +2,13 @@
 
 import numbers
 import os
-import tempfile
 import warnings
 from typing import Any, List, Optional, Sequence
 
 import numpy as np
 from PIL import Image
 
+from msnerf_jax import files
 from msnerf_jax.errors import UserError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -155,21 +155,6 @@ def check_scale(scale: int, what: str = "--stylize-scale") -> None:
     raise UserError(f"{what} {scale!r}: must be a whole number >= 1")
 
 
-def atomic_write_bytes(path: str, data: bytes) -> None:
-  """Writes `data` to `path` through a temporary file and a rename: never a partial file."""
-  folder = os.path.dirname(os.path.abspath(path))
-  os.makedirs(folder, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
-  try:
-    with os.fdopen(fd, "wb") as f:
-      f.write(data)
-    os.replace(tmp, path)
-  except BaseException:
-    if os.path.exists(tmp):
-      os.remove(tmp)
-    raise
-
-
 def write_image(path: str, image: np.ndarray) -> None:
   """Writes a float [0, 1] or uint8 image [h, w, 3|1] atomically; format from the extension."""
   import io
@@ -182,7 +167,7 @@ def write_image(path: str, image: np.ndarray) -> None:
   fmt = os.path.splitext(path)[1].lower().lstrip(".") or "png"
   fmt = {"jpg": "jpeg", "tif": "tiff"}.get(fmt, fmt)
   Image.fromarray(array).save(buffer, format=fmt.upper())
-  atomic_write_bytes(path, buffer.getvalue())
+  files.atomic_write_bytes(path, buffer.getvalue())
 
 
 def stack_same_size(images: Sequence[np.ndarray], paths: Sequence[str]) -> np.ndarray:
@@ -205,20 +190,6 @@ def read_json(path: str, hint: str = "") -> Any:
       return json.load(f)
   except (json.JSONDecodeError, UnicodeDecodeError) as e:
     raise UserError(f"{path}: malformed JSON ({e}){hint}") from None
-
-
-def write_json(path: str, value: Any) -> None:
-  """Saves a JSON-able value atomically, indented, keys sorted."""
-  import json  # pylint: disable=g-import-not-at-top
-  atomic_write_bytes(path, json.dumps(value, indent=2, sort_keys=True).encode())
-
-
-def write_npy(path: str, array: np.ndarray) -> None:
-  """Saves an array as .npy atomically (no pickles)."""
-  import io  # pylint: disable=g-import-not-at-top
-  buffer = io.BytesIO()
-  np.save(buffer, np.asarray(array), allow_pickle=False)
-  atomic_write_bytes(path, buffer.getvalue())
 
 
 def read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:

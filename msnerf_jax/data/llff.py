@@ -4,11 +4,11 @@ import os
 import re
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene, check_poses
 from msnerf_jax.errors import UserError
+from msnerf_jax.progress import progress_bar
 
 
 def _normalize(x):
@@ -95,7 +95,7 @@ def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0
   if len(files) != len(poses_bounds):
     raise UserError(f"{folder}: {len(files)} images but {pb_path} has {len(poses_bounds)} poses")
   imgs = []
-  for f in tqdm(files, desc="loading images", leave=False, disable=None):
+  for f in progress_bar(files, desc="loading images", leave=False, disable=None):
     image = images_lib.read_image(f)
     if extra > 1:
       image = images_lib.resize(image, image.shape[0] // extra, image.shape[1] // extra)

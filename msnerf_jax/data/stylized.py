@@ -20,12 +20,13 @@ import re
 from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import config as config_lib
+from msnerf_jax import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene, drop_legacy_data_keys
 from msnerf_jax.errors import UserError
+from msnerf_jax.progress import progress_bar
 
 MANIFEST = "manifest.json"
 POSES = "poses.npy"
@@ -112,8 +113,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     manifest["done"] = [n for n in saved["done"] if n in names]
   try:
     os.makedirs(out_dir, exist_ok=True)
-    images_lib.write_npy(os.path.join(out_dir, POSES), scene.c2w)
-    images_lib.write_json(path, manifest)
+    files.write_npy(os.path.join(out_dir, POSES), scene.c2w)
+    files.write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
 
@@ -124,7 +125,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       content_stats = read_content_stats(out_dir)
     else:
       content_stats = content_stats_fn(scene.images[scene.split("train")], stylize_scale)
-      images_lib.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
+      files.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
 
   written = skipped = 0
   for style in styles:
@@ -137,9 +138,9 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       vector = np.mean([np.asarray(style_vector_fn(scene.images[i])) for i in train], axis=0)
     else:
       vector = np.asarray(style_vector_fn(pictures[name]))
-    images_lib.write_npy(os.path.join(out_dir, name, VECTOR), vector)
-    for i in tqdm(range(len(scene.images)), desc=f"stylize {name}", disable=not progress,
-                  dynamic_ncols=True):
+    files.write_npy(os.path.join(out_dir, name, VECTOR), vector)
+    for i in progress_bar(range(len(scene.images)), desc=f"stylize {name}",
+                          disable=not progress):
       target = view_file(out_dir, name, i)
       if os.path.exists(target):
         skipped += 1
@@ -154,7 +155,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       images_lib.write_image(target, view)
       written += 1
     manifest["done"].append(name)
-    images_lib.write_json(path, manifest)
+    files.write_json(path, manifest)
   return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
 
 
@@ -225,7 +226,7 @@ def read_views(folder: str, name: str, n: int, height: int, width: int,
   """The n views of one style as uint8 [n, height, width, 3]; UserError naming a file that
   cannot be read or has another size than the manifest's."""
   images = np.empty((n, height, width, 3), np.uint8)
-  for i in tqdm(range(n), desc=f"loading {name}", disable=not progress, leave=False):
+  for i in progress_bar(range(n), desc=f"loading {name}", disable=not progress, leave=False):
     path = view_file(folder, name, i)
     image = images_lib.read_image(path)
     if image.shape[:2] != (height, width):

@@ -17,6 +17,7 @@ import optax
 
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import checkpoint as checkpoint_lib
+from msnerf_jax import files
 from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax.data import images as images_lib
@@ -276,7 +277,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   style_pools = [[load_for_crops(p, config.resize, config.size) for p in style_paths]]
 
   resumed = runs_lib.prepare_run_dir(run_dir, KIND, record)
-  images_lib.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
+  files.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
                                 "".join(p + "\n" for p in record["holdout"]).encode())
   checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
   start = checkpoints.latest_step() if resumed else None
@@ -369,4 +370,4 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
 def _write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
   record = runs_lib.read_run_file(run_dir)
   record["summary"] = summary
-  images_lib.write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)
+  files.write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)

@@ -9,11 +9,13 @@ from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 import jax
 import numpy as np
-from tqdm.auto import tqdm
 
 from msnerf_jax import checkpoint as ckpt_lib
-from msnerf_jax.errors import UserError
+from msnerf_jax import files
+from msnerf_jax.errors import Interrupted, UserError
+from msnerf_jax.progress import progress_bar
 from msnerf_jax.train import state as state_lib
+from msnerf_jax.train import stop as stop_lib
 
 
 def compile_step(step_fn: Callable, n_devices: int, constants: Tuple[Any, ...] = ()
@@ -39,7 +41,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
         n_devices: int, desc: str, progress: bool = True,
         callback: Optional[Callable[[int, Any], None]] = None,
         on_step: Optional[Callable[[int, Any, Dict[str, Any]], None]] = None,
-        shown: Sequence[str] = ("psnr",), history: bool = True) -> Dict[str, Any]:
+        shown: Sequence[str] = ("psnr",), history: bool = True,
+        stop_save_after: float = 60.0) -> Dict[str, Any]:
   """Trains from the run's latest checkpoint (if any) to `steps`.
 
   Args:
@@ -53,47 +56,81 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
       outputs (AdaIN's sample images).
     shown: the stats shown beside the loss on the progress bar and, with `history`,
       appended with it to run_dir/history.jsonl, every 25 steps.
+    stop_save_after: on SIGTERM or Ctrl-C (see `stop.stop_requests`) the step in flight
+      finishes, a checkpoint is saved there unless this process saved one less than this
+      many seconds ago, and Interrupted is raised.
   Returns:
     summary dict: run_dir, steps, resumed_from, seconds, devices and the last stats.
   Raises:
+    Interrupted on SIGTERM or Ctrl-C (after the save above).
+    DiskError when the checkpoints will not fit (checked before the first step) or a save
+    fails for lack of space (the earlier checkpoints are kept).
     UserError when the loss becomes NaN/inf (naming the step; the last good checkpoint
     stays the latest one).
   """
   checkpoints = ckpt_lib.Checkpoints(run_dir, keep=keep_checkpoints)
-  start = 0
-  if checkpoints.latest_step() is not None:
-    state = state_lib.restore_state(state, checkpoints.restore(state_lib.checkpoint_tree(state)))
-    start = int(state.step)
+  try:
+    start = 0
+    if checkpoints.latest_step() is not None:
+      state = state_lib.restore_state(state,
+                                      checkpoints.restore(state_lib.checkpoint_tree(state)))
+      start = int(state.step)
+    saves = len({s for s in range(start + 1, steps + 1) if s % checkpoint_every == 0} | {steps})
+    kept = len(checkpoints.all_steps())
+    # Orbax writes a new checkpoint before it deletes the oldest: at most keep + 1 at once.
+    checkpoints.check_space(state_lib.checkpoint_tree(state),
+                            max(0, min(keep_checkpoints + 1, kept + saves) - kept))
+  except BaseException:
+    checkpoints.close()
+    raise
   if n_devices > 1:
     state = state_lib.replicate(state, jax.local_devices()[:n_devices])
   t0 = time.time()
   stats, curve = {}, []
-  bar = tqdm(range(start, steps), initial=start, total=steps, desc=desc,
-             disable=not progress, dynamic_ncols=True)
+  last_save = None  # (step, time) of the last checkpoint this process saved
+  bar = progress_bar(range(start, steps), initial=start, total=steps, desc=desc,
+                     disable=not progress)
+
+  def save(done):
+    host = state_lib.unreplicate(state) if n_devices > 1 else state
+    checkpoints.save(done, state_lib.checkpoint_tree(host))
+    return host
+
   try:
-    for step in bar:
-      batch = batch_fn(step)
-      if n_devices > 1:
-        batch = state_lib.shard(batch, n_devices)
-      state, stats = step_fn(state, batch)
-      if on_step is not None:
-        on_step(step + 1, state, stats)
-      loss = float(np.asarray(stats["loss"]).reshape(-1)[0])
-      if not np.isfinite(loss):
-        raise UserError(f"loss became {loss} at step {step + 1}; training stopped, the last "
-                        f"good checkpoint (step {checkpoints.latest_step()}) is kept")
-      done = step + 1
-      if done % 25 == 0 or done == steps:
-        values = {k: float(np.asarray(stats[k]).reshape(-1)[0]) for k in shown}
-        bar.set_postfix(loss=f"{loss:.4f}", **{k: f"{v:.2f}" for k, v in values.items()})
-        curve.append({"step": done, "loss": loss, **values, "time": time.time() - t0})
-      if done % checkpoint_every == 0 or done == steps:
-        host = state_lib.unreplicate(state) if n_devices > 1 else state
-        checkpoints.save(done, state_lib.checkpoint_tree(host))
-        if callback is not None:
-          t_cb = time.time()
-          callback(done, host.params)
-          t0 += time.time() - t_cb
+    with stop_lib.stop_requests() as stop_requested:
+      for step in bar:
+        batch = batch_fn(step)
+        if n_devices > 1:
+          batch = state_lib.shard(batch, n_devices)
+        state, stats = step_fn(state, batch)
+        if on_step is not None:
+          on_step(step + 1, state, stats)
+        loss = float(np.asarray(stats["loss"]).reshape(-1)[0])
+        if not np.isfinite(loss):
+          raise UserError(f"loss became {loss} at step {step + 1}; training stopped, the last "
+                          f"good checkpoint (step {checkpoints.latest_step()}) is kept")
+        done = step + 1
+        if done % 25 == 0 or done == steps:
+          values = {k: float(np.asarray(stats[k]).reshape(-1)[0]) for k in shown}
+          bar.set_postfix(loss=f"{loss:.4f}", **{k: f"{v:.2f}" for k, v in values.items()})
+          curve.append({"step": done, "loss": loss, **values, "time": time.time() - t0})
+        if done % checkpoint_every == 0 or done == steps:
+          host = save(done)
+          last_save = (done, time.time())
+          if callback is not None:
+            t_cb = time.time()
+            callback(done, host.params)
+            t0 += time.time() - t_cb
+        signum = stop_requested()
+        if signum is not None and done < steps:
+          # Save unless this process saved less than a minute ago: a preempted job loses
+          # at most a minute, and a quick second request is not slowed by a save.
+          if last_save is None or time.time() - last_save[1] >= stop_save_after:
+            save(done)
+            last_save = (done, time.time())
+          if history:
+            append_history(run_dir, curve)
+          raise Interrupted(signum, done, last_save[0])
   finally:
     bar.close()
     checkpoints.close()
@@ -105,9 +142,7 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
 
 
 def append_history(run_dir: str, history):
-  """Appends training curve points to run_dir/history.jsonl (one JSON object a line)."""
-  if not history:
-    return
-  with open(os.path.join(run_dir, "history.jsonl"), "a") as f:
-    for row in history:
-      f.write(json.dumps(row) + "\n")
+  """Appends training curve points to run_dir/history.jsonl (one JSON object a line),
+  atomically: a kill or a full disk leaves the previous file."""
+  if history:
+    files.append_lines(os.path.join(run_dir, "history.jsonl"), [json.dumps(r) for r in history])
