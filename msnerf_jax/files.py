@@ -149,6 +149,8 @@ def atomic_path(path: str, needed: Optional[int] = None) -> Iterator[str]:
 def atomic_write_bytes(path: str, data: bytes) -> None:
   """Writes `data` to `path` through a temporary file, fsync and a rename: never a partial
   file; a write fault is a DiskError naming `path` and the size it needed."""
+  if len(data) > free_bytes(os.path.dirname(os.path.abspath(path))):  # fail before writing
+    raise disk_error(path, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), len(data))
   with atomic_path(path, len(data)) as tmp:
     with open(tmp, "wb") as f:
       f.write(data)

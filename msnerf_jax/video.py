@@ -36,19 +36,37 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[
   ext = os.path.splitext(path)[1].lower()
   if ext not in (".gif", ".mp4"):
     raise UserError(f"{path}: video must end in .mp4 or .gif")
-  h, w = frames[0].shape[:2]
-  # A GIF stores about a byte a pixel; the MP4 is far smaller.
-  with files.atomic_path(path, needed=len(frames) * h * w if ext == ".gif" else None) as tmp:
-    if ext == ".gif":
-      imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps, loop=0)
-    else:
-      # Even sizes for yuv420p; macro_block_size=1 keeps odd sizes from being resized.
-      frames = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]
-      with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8,
-                              macro_block_size=1, pixelformat="yuv420p") as writer:
-        for f in frames:
-          writer.append_data(f)
+  if ext == ".gif":  # encoded in memory: the file is written at once, or not at all
+    data = imageio.mimwrite("<bytes>", frames, format="GIF", duration=1000.0 / fps, loop=0)
+    files.atomic_write_bytes(path, data)
+    return [path]
+  # Even sizes for yuv420p; macro_block_size=1 keeps odd sizes from being resized.
+  frames = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]
+  with files.atomic_path(path) as tmp:
+    with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8,
+                            macro_block_size=1, pixelformat="yuv420p",
+                            ffmpeg_log_level="quiet") as writer:
+      for f in frames:
+        writer.append_data(f)
+    _check_complete(tmp, len(frames))
   return [path]
+
+
+def _check_complete(tmp: str, n_frames: int) -> None:
+  """ffmpeg's exit status is not checked by imageio: a full disk leaves a truncated MP4 and
+  no error. Reads the file's frame count back (a stream copy, no decoding) and raises
+  OSError(ENOSPC) when the disk is (nearly) full, else UserError, unless all frames are there."""
+  import errno  # pylint: disable=g-import-not-at-top
+  import imageio_ffmpeg  # pylint: disable=g-import-not-at-top
+  try:
+    count = imageio_ffmpeg.count_frames_and_secs(tmp)[0]
+  except (RuntimeError, OSError):
+    count = -1
+  if count != n_frames:
+    if files.free_bytes(tmp) < files.MB:
+      raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
+    raise UserError(f"{tmp}: the video encoder (ffmpeg) wrote {max(count, 0)} of {n_frames} "
+                    "frames")
 
 
 def write_videos(stem: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[str]:

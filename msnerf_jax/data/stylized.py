@@ -127,6 +127,9 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       content_stats = content_stats_fn(scene.images[scene.split("train")], stylize_scale)
       files.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
 
+  remaining = sum(1 for st in styles if st["name"] not in manifest["done"]) * len(scene.images)
+  files.check_free_space(out_dir, remaining * png_bytes(scene.height, scene.width),
+                         f"the stylized views ({remaining} PNG files)")
   written = skipped = 0
   for style in styles:
     name = style["name"]
@@ -157,6 +160,13 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     manifest["done"].append(name)
     files.write_json(path, manifest)
   return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
+
+
+def png_bytes(height: int, width: int) -> int:
+  """About how many bytes one stylized RGB PNG of that size takes on disk: half the raw
+  pixels (lego's white backgrounds compress to a third, photographs to two thirds) and a
+  file-system block."""
+  return height * width * 3 // 2 + 4096
 
 
 def read_manifest(out_dir: str) -> Dict[str, Any]:
