@@ -84,12 +84,13 @@ def disk_error(path: str, error: BaseException, needed: Optional[int] = None
   except OSError:
     free = None
   detail = []
-  if needed is not None:
+  if needed:
     detail.append(f"needed about {_mb(needed)}")
   if free is not None:
     detail.append(f"{_mb(free)} free")
   suffix = f" ({', '.join(detail)})" if detail else ""
-  hint = "; free some space and re-run the same command" if fault != WRITE_FAULTS[errno.EROFS] else ""
+  full = fault in (WRITE_FAULTS[errno.ENOSPC], WRITE_FAULTS[errno.EDQUOT])
+  hint = "; free some space and re-run the same command" if full else ""
   return DiskError(f"{path}: {fault}{suffix}{hint}")
 
 

@@ -3,7 +3,7 @@
 tqdm redraws its bar with carriage returns, which a log file or CI keeps as hundreds of
 kilobytes of partial lines. Where the stream is not a terminal, `progress` prints one plain
 line every `every_seconds` seconds or `every_percent` percent instead (whichever comes
-first) and one at the end, so a summary printed afterwards stays the last line. `progress_bar` picks one.
+first), one at the start and one at the end, so a summary printed afterwards stays the last line. `progress_bar` picks one.
 """
 
 import sys
@@ -37,6 +37,7 @@ class LineProgress:
     self.start = self.last_time = time.time()
     self.last_n = initial
     self.closed = False
+    self._print(self.start)  # where it starts (a resumed run: the step it resumes from)
 
   def __iter__(self):
     try:

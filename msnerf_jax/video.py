@@ -1,6 +1,7 @@
 """Writing what people look at: MP4/GIF videos, image grids, depth maps (atomic writes)."""
 
 import os
+import resource
 from typing import List, Optional, Sequence
 
 import imageio.v2 as imageio
@@ -48,14 +49,16 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[
                             ffmpeg_log_level="quiet") as writer:
       for f in frames:
         writer.append_data(f)
-    _check_complete(tmp, len(frames))
+    _check_complete(tmp, len(frames), path)
   return [path]
 
 
-def _check_complete(tmp: str, n_frames: int) -> None:
+def _check_complete(tmp: str, n_frames: int, path: str) -> None:
   """ffmpeg's exit status is not checked by imageio: a full disk leaves a truncated MP4 and
   no error. Reads the file's frame count back (a stream copy, no decoding) and raises
-  OSError(ENOSPC) when the disk is (nearly) full, else UserError, unless all frames are there."""
+  OSError(ENOSPC) when the disk is (nearly) full, OSError(EFBIG) when the file reached this
+  process's file-size limit, else UserError, unless all frames are there (`atomic_path`
+  names `path`)."""
   import errno  # pylint: disable=g-import-not-at-top
   import imageio_ffmpeg  # pylint: disable=g-import-not-at-top
   try:
@@ -63,10 +66,13 @@ def _check_complete(tmp: str, n_frames: int) -> None:
   except (RuntimeError, OSError):
     count = -1
   if count != n_frames:
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     if files.free_bytes(tmp) < files.MB:
       raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
-    raise UserError(f"{tmp}: the video encoder (ffmpeg) wrote {max(count, 0)} of {n_frames} "
-                    "frames")
+    if limit != resource.RLIM_INFINITY and os.path.getsize(tmp) >= limit:
+      raise OSError(errno.EFBIG, os.strerror(errno.EFBIG), tmp)  # ffmpeg inherits the limit
+    raise UserError(f"{path}: the video encoder (ffmpeg) wrote {max(count, 0)} of "
+                    f"{n_frames} frames")
 
 
 def write_videos(stem: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[str]:

@@ -29,7 +29,8 @@ from conftest import untrained_nerf_run, write_blender_scene
 from test_bad_input import write_style, write_stylized
 from test_train_nerf import TINY
 
-PROGRESS = re.compile(r"(?:nerf train|multistyle train|adain): [^\r\n]*?(\d+)/(\d+) \[")
+# Progress off a terminal: "nerf train: 12/120 (10%) 3s loss=..." lines (msnerf_jax.progress).
+PROGRESS = re.compile(r"(?:nerf train|multistyle train|adain): [^\r\n]*?(\d+)/(\d+) \(")
 
 
 @pytest.fixture(scope="module")

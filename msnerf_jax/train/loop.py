@@ -88,8 +88,7 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
   t0 = time.time()
   stats, curve = {}, []
   last_save = None  # (step, time) of the last checkpoint this process saved
-  bar = progress_bar(range(start, steps), initial=start, total=steps, desc=desc,
-                     disable=not progress)
+  bar = None
 
   def save(done):
     host = state_lib.unreplicate(state) if n_devices > 1 else state
@@ -98,6 +97,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
 
   try:
     with stop_lib.stop_requests() as stop_requested:
+      bar = progress_bar(range(start, steps), initial=start, total=steps, desc=desc,
+                         disable=not progress)
       for step in bar:
         batch = batch_fn(step)
         if n_devices > 1:
@@ -132,7 +133,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
             append_history(run_dir, curve)
           raise Interrupted(signum, done, last_save[0])
   finally:
-    bar.close()
+    if bar is not None:
+      bar.close()
     checkpoints.close()
   if history:
     append_history(run_dir, curve)
