@@ -83,6 +83,10 @@ def main():
   parser.add_argument("--eval-every", type=int, default=None, help="lego 1000, fern 500")
   parser.add_argument("--weight", type=float, default=0.01, help="fern: distortion weight")
   parser.add_argument("--out", default="runs/bench_empty_space")
+  parser.add_argument("--view-stride", type=int, default=1,
+                      help="evaluate every Nth val/test view (the paper preset on CPU)")
+  parser.add_argument("--precrop-steps", type=int, default=None,
+                      help="override the preset's centre-crop steps (for shorter runs)")
   args = parser.parse_args()
 
   lego = args.scene == "lego"
@@ -93,6 +97,10 @@ def main():
   scene, data_config = load_scene(DataConfig(path=path, downscale=8))
   split = "val" if lego else "test"
   base = nerf_preset(args.preset, data_config.format, steps=steps, checkpoint_every=every)
+  if args.precrop_steps is not None:
+    base = dataclasses.replace(base, precrop_steps=args.precrop_steps)
+  eval_scene = dataclasses.replace(
+      scene, splits={**scene.splits, split: scene.split(split)[::args.view_stride]})
   if lego:
     variants = {"white": dataclasses.replace(base, random_background=False),
                 "random": dataclasses.replace(base, random_background=True)}
@@ -100,7 +108,8 @@ def main():
     variants = {"plain": base,
                 f"distortion_{args.weight:g}": dataclasses.replace(base,
                                                                    distortion_weight=args.weight)}
-  print(f"# {args.scene} {scene.width}x{scene.height}, preset {args.preset}, {steps} steps; "
+  print(f"# {args.scene} {scene.width}x{scene.height}, preset {args.preset}, {steps} steps, "
+        f"precrop {base.precrop_steps}, every {args.view_stride}. {split} view; "
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"jax {jax.__version__} on {jax.devices()[0].platform}")
   extra = ("opacity_background", "opacity_object") if lego else ("distortion", "off_surface")
@@ -114,7 +123,7 @@ def main():
 
     def on_checkpoint(step, params, config=config, rows=rows, clock=clock, name=name):
       t = time.time()
-      _, mean, _ = evaluate_nerf(scene, params, config, split, progress=False)
+      _, mean, _ = evaluate_nerf(eval_scene, params, config, split, progress=False)
       if not lego:
         mean["distortion"], mean["off_surface"] = weight_stats(scene, params, config,
                                                                scene.split(split))

@@ -671,6 +671,7 @@ PEAK = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="measures Linux VmHWM")
 def test_8000x8000_style_is_downscaled_while_decoding(world, tmp_path, capsys):
   path = _huge_jpeg(tmp_path / "huge.jpg")

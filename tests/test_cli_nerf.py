@@ -44,6 +44,7 @@ def test_train_eval_render_lego(lego, tmp_path):
     assert os.path.getsize(tmp_path / name) > 500
 
 
+@pytest.mark.slow
 def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
   run = str(tmp_path / "run")
   common = ["nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "64",

@@ -93,6 +93,7 @@ def test_random_background_target_is_the_photo_over_that_colour(tiny_blender):
   np.testing.assert_allclose(np.asarray(out["fine"]["rgb"]), bg, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_random_backgrounds_and_distortion_resume_bit_identically(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   config = dataclasses.replace(TINY, random_background=True, distortion_weight=0.01)

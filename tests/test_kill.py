@@ -187,7 +187,8 @@ def check_final(run, clean, steps):
 STEPS = {"nerf": 45, "adain": 30, "multistyle": 36}
 
 
-@pytest.mark.parametrize("trainer", ["nerf", "multistyle", "adain"])
+@pytest.mark.parametrize("trainer", ["nerf", pytest.param("multistyle", marks=pytest.mark.slow),
+                                     pytest.param("adain", marks=pytest.mark.slow)])
 def test_kill_and_resume(trainer, inputs, tmp_path):
   """A random SIGKILL; NeRF ends bit-identical to an uninterrupted run of the same command
   (reproducibility; the slow test checks all three); multi-style and AdaIN end with valid
@@ -216,3 +217,115 @@ def test_kill_20_times_and_resume(trainer, inputs, tmp_path):
   clean = str(tmp_path / "clean")
   run_to_end(command(trainer, inputs, clean, steps)[0], inputs["env"], str(tmp_path / "clean"))
   check_final(run, clean, steps)
+
+
+# ------------------------------------------------- every other artefact, killed 20 times
+
+DEMO = ["--size", "16", "--views", "4", "--adain-steps", "4", "--adain-size", "16",
+        "--nerf-steps", "30", "--nerf-batch-rays", "64", "--ms-steps", "30",
+        "--ms-batch-rays", "32", "--frames", "6", "--grid-views", "2"]
+
+
+def check_artefacts(folder):
+  """Every file under `folder` is complete: it parses as what its name says. Hidden
+  temporaries of a killed atomic write (.tmp-*) and orbax's temporary checkpoint folders are
+  not artefacts (the next run ignores and removes them); complete checkpoints are checked by
+  the trainer kill tests. Returns the artefacts' relative paths."""
+  import imageio_ffmpeg  # pylint: disable=g-import-not-at-top
+  import json  # pylint: disable=g-import-not-at-top
+  from PIL import Image  # pylint: disable=g-import-not-at-top
+  found = []
+  for root, dirs, names in os.walk(folder):
+    dirs[:] = [d for d in dirs if d != "checkpoints"]
+    for name in names:
+      path = os.path.join(root, name)
+      if name.startswith(".tmp-"):
+        continue
+      ext = os.path.splitext(name)[1].lower()
+      if ext in (".png", ".gif", ".jpg"):
+        with Image.open(path) as im:
+          im.load()
+      elif ext == ".json":
+        json.load(open(path))
+      elif ext == ".jsonl":
+        [json.loads(line) for line in open(path)]
+      elif ext == ".npy":
+        np.load(path, allow_pickle=False)
+      elif ext == ".mp4":
+        assert imageio_ffmpeg.count_frames_and_secs(path)[0] > 0, path
+      elif ext in (".txt", ".md", ".csv"):
+        assert open(path).read().endswith("\n") or os.path.getsize(path) > 0, path
+      found.append(os.path.relpath(path, folder))
+  return sorted(found)
+
+
+def kill_20_times(argv, env, tmp_path, outputs, seed):
+  """Runs `argv` and SIGKILLs it at a random moment, 20 times (or until it finishes), checks
+  every artefact under `outputs` after each kill, then runs it to the end."""
+  rng = random.Random(seed)
+  kills = 0
+  for k in range(20):
+    log = str(tmp_path / f"kill{k}")
+    proc = start(argv, env, log)
+    try:
+      proc.wait(timeout=rng.uniform(1.0, 12.0))
+    except subprocess.TimeoutExpired:
+      os.killpg(proc.pid, signal.SIGKILL)
+      proc.wait()
+      kills += 1
+    else:
+      assert proc.returncode == 0, open(log + ".err").read()[-3000:]
+      break
+    for folder in outputs:
+      check_artefacts(folder)
+  run_to_end(argv, env, str(tmp_path / "final"))
+  return kills
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory, inputs):
+  out = str(tmp_path_factory.mktemp("demo") / "demo")
+  run_to_end(["demo", "--out", out, *DEMO], inputs["env"], out + "-log")
+  return out
+
+
+@pytest.mark.slow
+def test_kill_the_pipeline_20_times(inputs, tmp_path):
+  out = str(tmp_path / "demo")
+  kills = kill_20_times(["demo", "--out", out, *DEMO], inputs["env"], tmp_path, [out], 21)
+  assert kills >= 10, kills
+  clean = str(tmp_path / "clean")
+  run_to_end(["demo", "--out", clean, *DEMO], inputs["env"], str(tmp_path / "clean-log"))
+  killed, fresh = check_artefacts(out), check_artefacts(clean)
+  assert killed == fresh
+  for rel in fresh:  # the views, stylized images and grids are bit-identical
+    if rel.endswith((".png", ".npy")):
+      assert open(os.path.join(out, rel), "rb").read() == open(os.path.join(clean, rel),
+                                                               "rb").read(), rel
+
+
+@pytest.mark.slow
+def test_kill_a_stylized_dataset_20_times(inputs, demo_run, tmp_path):
+  styles = sorted(os.path.join(demo_run, "styles", n)
+                  for n in os.listdir(os.path.join(demo_run, "styles")))
+  argv = lambda out: ["stylize-scene", "--data", os.path.join(demo_run, "scene"), "--decoder",
+                      os.path.join(demo_run, "adain"), "--styles", *styles,
+                      "--include-original", "--out", out]
+  out, clean = str(tmp_path / "stylized"), str(tmp_path / "clean")
+  kills = kill_20_times(argv(out), inputs["env"], tmp_path, [out], 22)
+  assert kills >= 5, kills
+  run_to_end(argv(clean), inputs["env"], str(tmp_path / "clean-log"))
+  assert check_artefacts(out) == check_artefacts(clean)
+  for rel in check_artefacts(clean):
+    assert open(os.path.join(out, rel), "rb").read() == open(os.path.join(clean, rel),
+                                                             "rb").read(), rel
+
+
+@pytest.mark.slow
+def test_kill_the_evaluation_20_times(inputs, demo_run, tmp_path):
+  out = str(tmp_path / "eval")
+  argv = ["evaluate", "--run", os.path.join(demo_run, "multistyle"), "--frames", "6",
+          "--chunk", "256", "--out", out]
+  kills = kill_20_times(argv, inputs["env"], tmp_path, [out], 23)
+  assert kills >= 5, kills
+  assert {"results.md", "results.json", "frames.png"} <= set(check_artefacts(out))

@@ -429,6 +429,7 @@ TWO_DEVICES = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # the NeRF trainer's two-device test stays in the default suite
 @pytest.mark.parametrize("density_aware, style_weight", [(True, 0.0), (False, 0.01)])
 def test_two_devices_give_the_same_update_as_one(world, density_aware, style_weight):
   code = TWO_DEVICES.format(tests=TESTS, nerf=world["nerf"], stylized=world["stylized"],
@@ -460,6 +461,7 @@ def test_patches_are_whole_pixel_blocks_of_one_view_in_every_style(world):
     assert found, f"patch {p} is not a 5x5 block of one view (same pixels and rays)"
 
 
+@pytest.mark.slow
 def test_style_loss_pulls_the_heads_and_resumes_bit_identically(world, tmp_path):
   data = load_stylized(world["stylized"], progress=False)
   nerf_run = load_run(world["nerf"])

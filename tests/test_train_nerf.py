@@ -45,6 +45,7 @@ def test_training_lowers_the_loss(tiny_blender, tmp_path):
   assert float(last["loss"]) < 0.8 * float(first["loss"])
 
 
+@pytest.mark.slow
 def test_resume_gives_the_same_parameters_as_one_run(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   nerf.train(scene, TINY, data, str(tmp_path / "full"), progress=False)

@@ -343,16 +343,6 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
                            keep_checkpoints=config.keep_checkpoints, n_devices=1, desc="adain",
                            progress=progress, on_step=on_step, shown=("content", "style"),
                            history=False)
-  except KeyboardInterrupt:  # keep what was trained since the last checkpoint.
-    if done > (start or 0):
-      check_finite(latest.params, done)
-      checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
-      try:
-        checkpoints.save(done, state_lib.checkpoint_tree(
-            latest.replace(step=np.asarray(done, np.int64))))
-      finally:
-        checkpoints.close()
-    raise
   finally:
     batches.close()
   seconds = summary["seconds"]
