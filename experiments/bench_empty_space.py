@@ -85,6 +85,9 @@ def main():
   parser.add_argument("--out", default="runs/bench_empty_space")
   parser.add_argument("--view-stride", type=int, default=1,
                       help="evaluate every Nth val/test view (the paper preset on CPU)")
+  parser.add_argument("--variants", nargs="+", default=None, metavar="NAME",
+                      help="run only these variants (lego: white random; fern: plain "
+                           "distortion_W)")
   parser.add_argument("--precrop-steps", type=int, default=None,
                       help="override the preset's centre-crop steps (for shorter runs)")
   args = parser.parse_args()
@@ -108,6 +111,11 @@ def main():
     variants = {"plain": base,
                 f"distortion_{args.weight:g}": dataclasses.replace(base,
                                                                    distortion_weight=args.weight)}
+  if args.variants:
+    unknown = set(args.variants) - set(variants)
+    if unknown:
+      parser.error(f"--variants: unknown {sorted(unknown)}; choose from {sorted(variants)}")
+    variants = {k: v for k, v in variants.items() if k in args.variants}
   print(f"# {args.scene} {scene.width}x{scene.height}, preset {args.preset}, {steps} steps, "
         f"precrop {base.precrop_steps}, every {args.view_stride}. {split} view; "
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
