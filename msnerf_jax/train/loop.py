@@ -129,8 +129,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
           if last_save is None or time.time() - last_save[1] >= stop_save_after:
             save(done)
             last_save = (done, time.time())
-          if history:
-            append_history(run_dir, curve)
+          if history:  # the curve up to the checkpoint the next run resumes from
+            append_history(run_dir, [r for r in curve if r["step"] <= last_save[0]])
           raise Interrupted(signum, done, last_save[0])
   finally:
     if bar is not None:
