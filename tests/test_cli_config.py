@@ -49,6 +49,7 @@ def test_help_has_no_default_none_on_required_options():
         assert f"{' '.join(action.help.split())} (default: None)" not in text, action.dest
 
 
+@pytest.mark.slow
 def test_generated_options_and_config_file_reach_run_json(tiny_blender, tmp_path):
   first = str(tmp_path / "first")
   r = msnerf("nerf", "train", "--data", tiny_blender, "--out", first, "--steps", "1",

@@ -24,6 +24,7 @@ def assert_one_line_error(result, pattern):
   assert re.search(pattern, lines[0]), lines[0]
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_train_eval_render_lego(lego, tmp_path):
   run = str(tmp_path / "run")
