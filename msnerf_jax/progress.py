@@ -3,9 +3,11 @@
 tqdm redraws its bar with carriage returns, which a log file or CI keeps as hundreds of
 kilobytes of partial lines. Where the stream is not a terminal, `progress` prints one plain
 line every `every_seconds` seconds or `every_percent` percent instead (whichever comes
-first), one at the start and one at the end, so a summary printed afterwards stays the last line. `progress_bar` picks one.
+first; the environment variable MSNERF_PROGRESS_PERCENT changes the 10), one at the start
+and one at the end, so a summary printed afterwards stays the last line. `progress_bar` picks one.
 """
 
+import os
 import sys
 import time
 from typing import Any, Iterable, Optional, TextIO
@@ -88,4 +90,10 @@ def progress_bar(iterable: Optional[Iterable] = None, *, total: Optional[int] = 
   if disable or _is_terminal(file):
     return tqdm(iterable, total=total, initial=initial, desc=desc, disable=disable,
                 leave=leave, dynamic_ncols=True, file=file)
-  return LineProgress(iterable, total=total, initial=initial, desc=desc, file=file)
+  every = os.environ.get("MSNERF_PROGRESS_PERCENT", "10")  # e.g. 1 for a line a percent
+  try:
+    every_percent = max(float(every), 0.001)
+  except ValueError:
+    every_percent = 10.0
+  return LineProgress(iterable, total=total, initial=initial, desc=desc, file=file,
+                      every_percent=every_percent)

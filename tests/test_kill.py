@@ -57,7 +57,8 @@ def inputs(tmp_path_factory, request):
       root / "jax-cache")
   env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache_dir,
              JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-             JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+             JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
+             MSNERF_PROGRESS_PERCENT="0.5")  # a progress line every step: kills land in steps
   return {"root": root, "scene": scene, "nerf": nerf_run, "stylized": stylized,
           "content": str(root / "content"), "styles": str(root / "styles"), "env": env}
 
