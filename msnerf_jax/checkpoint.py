@@ -49,9 +49,9 @@ class Checkpoints:
 
   A checkpoint is a dict pytree (params, optimizer state, step, PRNG key ...). A process
   killed mid-save leaves only a temporary folder, which is ignored and removed on the next
-  start, so the latest *complete* checkpoint is what `restore` returns. A full disk is refused before a
-  save starts when the estimate does not fit, and a save that fails anyway raises
-  DiskError and leaves no temporary folder.
+  start, so the latest *complete* checkpoint is what `restore` returns. On a full disk a
+  save is refused before it starts when the estimate does not fit, and a save that fails
+  anyway raises DiskError and leaves no temporary folder.
   """
 
   def __init__(self, run_dir: str, keep: int = 3):
@@ -72,16 +72,15 @@ class Checkpoints:
 
   def check_space(self, tree: Any, count: int = 1) -> None:
     """DiskError up front unless `count` more checkpoints of `tree` fit on the disk."""
-    if count <= 0:
-      return
-    files.check_free_space(self.directory, count * checkpoint_bytes(tree),
-                           f"{count} checkpoint{'s' if count > 1 else ''}")
+    if count > 0:
+      files.check_free_space(self.directory, count * checkpoint_bytes(tree),
+                             f"{count} checkpoint{'s' if count > 1 else ''}")
 
   def save(self, step: int, tree: Any) -> None:
     """Saves `tree` as checkpoint `step` (a no-op if it exists) or raises DiskError on a
     write fault (full disk ...), leaving no temporary folder and every earlier checkpoint
     as it was."""
-    if step in self._manager.all_steps():
+    if step in self.all_steps():
       return
     self.check_space(tree)
     try:

@@ -207,8 +207,8 @@ def _run_renders(out, s: Settings, progress):
   written = video.write_videos(os.path.join(folder, "styles"), tiles, s.fps)
   morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
   path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
-  frames = [render(c2w, [v])[0] for c2w, v in progress_bar(list(zip(poses, path)), desc="render morph",
-                                                     disable=not progress)]
+  frames = [render(c2w, [v])[0] for c2w, v in progress_bar(
+      list(zip(poses, path)), desc="render morph", disable=not progress)]
   written += video.write_videos(os.path.join(folder, "morph"), frames, s.fps)
   views = np.linspace(0, len(poses), max(1, s.grid_views) + 1)[:-1].round().astype(int)
   grid_rows = [[sweeps[v][m] for v in views] for m in range(len(names))]

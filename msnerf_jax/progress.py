@@ -4,7 +4,8 @@ tqdm redraws its bar with carriage returns, which a log file or CI keeps as hund
 kilobytes of partial lines. Where the stream is not a terminal, `progress` prints one plain
 line every `every_seconds` seconds or `every_percent` percent instead (whichever comes
 first; the environment variable MSNERF_PROGRESS_PERCENT changes the 10), one at the start
-and one at the end, so a summary printed afterwards stays the last line. `progress_bar` picks one.
+and one at the end, so a summary printed afterwards stays the last line. `progress_bar`
+picks one.
 """
 
 import os
@@ -66,7 +67,8 @@ class LineProgress:
       self._print(now)
 
   def _print(self, now: float) -> None:
-    count = f"{self.n}/{self.total} ({100 * self.n / self.total:.0f}%)" if self.total else f"{self.n}"
+    count = (f"{self.n}/{self.total} ({100 * self.n / self.total:.0f}%)" if self.total
+             else f"{self.n}")
     line = f"{self.desc}: {count} {now - self.start:.0f}s"
     print(f"{line} {self.postfix}".rstrip(), file=self.file, flush=True)
     self.last_time, self.last_n = now, self.n

@@ -34,16 +34,18 @@ def write_render_videos(render: StyleRenderer, poses: np.ndarray, main: np.ndarr
   (two style vectors A, B) also STEM_morph.mp4/.gif, whose style moves from A to B along the
   path, and STEM_grid.png: `grid_views` rows (cameras) x `grid_steps` columns (A ... B).
   """
-  frames = [render(c2w, [main])[0] for c2w in progress_bar(poses, desc="style video", disable=not progress)]
+  frames = [render(c2w, [main])[0]
+            for c2w in progress_bar(poses, desc="style video", disable=not progress)]
   written = video.write_videos(stem, frames, fps)
   if ends is None:
     return written
   path = styles_lib.sweep(ends[0], ends[1], len(poses))
-  frames = [render(c2w, [v])[0] for c2w, v in progress_bar(list(zip(poses, path)), desc="morph video",
-                                                     disable=not progress)]
+  frames = [render(c2w, [v])[0] for c2w, v in progress_bar(
+      list(zip(poses, path)), desc="morph video", disable=not progress)]
   written += video.write_videos(stem + "_morph", frames, fps)
   steps = styles_lib.sweep(ends[0], ends[1], max(2, grid_steps))
   rows = [list(render(c2w, steps))  # one sweep per view
-          for c2w in progress_bar(spaced_views(poses, grid_views), desc="grid", disable=not progress)]
+          for c2w in progress_bar(spaced_views(poses, grid_views), desc="grid",
+                                  disable=not progress)]
   written.append(video.write_grid(stem + "_grid.png", rows))
   return written

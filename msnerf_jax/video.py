@@ -1,5 +1,6 @@
 """Writing what people look at: MP4/GIF videos, image grids, depth maps (atomic writes)."""
 
+import errno
 import os
 import resource
 from typing import List, Optional, Sequence
@@ -59,16 +60,15 @@ def _check_complete(tmp: str, n_frames: int, path: str) -> None:
   OSError(ENOSPC) when the disk is (nearly) full, OSError(EFBIG) when the file reached this
   process's file-size limit, else UserError, unless all frames are there (`atomic_path`
   names `path`)."""
-  import errno  # pylint: disable=g-import-not-at-top
   import imageio_ffmpeg  # pylint: disable=g-import-not-at-top
   try:
     count = imageio_ffmpeg.count_frames_and_secs(tmp)[0]
   except (RuntimeError, OSError):
     count = -1
   if count != n_frames:
-    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     if files.free_bytes(tmp) < files.MB:
       raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     if limit != resource.RLIM_INFINITY and os.path.getsize(tmp) >= limit:
       raise OSError(errno.EFBIG, os.strerror(errno.EFBIG), tmp)  # ffmpeg inherits the limit
     raise UserError(f"{path}: the video encoder (ffmpeg) wrote {max(count, 0)} of "

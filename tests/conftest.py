@@ -81,3 +81,23 @@ def untrained_nerf_run(run_dir, data, config, step=2):
   ckpts.save(step, state_lib.checkpoint_tree(nerf.init_state(config)))
   ckpts.close()
   return run_dir
+
+
+def trainer_env(request, fallback_cache_dir, **extra):
+  """The environment of `python -m msnerf_jax` subprocesses in tests: CPU JAX with a
+  persistent compilation cache (pytest's cache folder, else `fallback_cache_dir`)."""
+  cache = getattr(request.config, "cache", None)
+  cache_dir = str(cache.mkdir("jax-compilation-cache")) if cache is not None else str(
+      fallback_cache_dir)
+  return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache_dir,
+              JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+              JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", **extra)
+
+
+def flat_params(run):
+  """[(key path, array)] of a run folder's parameters, to compare two runs bit for bit."""
+  # pylint: disable=g-import-not-at-top
+  import jax
+  import msnerf_jax
+  return [(jax.tree_util.keystr(p), np.asarray(v))
+          for p, v in jax.tree_util.tree_leaves_with_path(msnerf_jax.load_run(run).params)]

@@ -26,17 +26,21 @@ import resource
 import sys
 
 
-def snapshot(disk, path):
+def file_hashes(folder):
+  """{path relative to `folder`: sha256} of every file under it but the filler."""
   hashes = {}
-  for root, _, names in os.walk(disk):
+  for root, _, names in os.walk(folder):
     for name in names:
-      full = os.path.join(root, name)
-      if os.path.basename(full) == "filler":
-        continue
-      with open(full, "rb") as f:
-        hashes[os.path.relpath(full, disk)] = hashlib.sha256(f.read()).hexdigest()
+      if name != "filler":
+        with open(os.path.join(root, name), "rb") as f:
+          hashes[os.path.relpath(os.path.join(root, name), folder)] = hashlib.sha256(
+              f.read()).hexdigest()
+  return hashes
+
+
+def snapshot(disk, path):
   with open(path, "w") as f:
-    json.dump(hashes, f)
+    json.dump(file_hashes(disk), f)
 
 
 def fail_disk(mode, disk, snapshot_path):

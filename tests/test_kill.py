@@ -29,7 +29,7 @@ from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.models import decoder
 
-from conftest import untrained_nerf_run, write_blender_scene
+from conftest import flat_params, trainer_env, untrained_nerf_run, write_blender_scene
 from test_bad_input import write_style, write_stylized
 from test_train_nerf import TINY
 
@@ -52,13 +52,8 @@ def inputs(tmp_path_factory, request):
   for i in range(2):
     write_style(root / "content" / f"c{i}.png", (30 + 100 * i, 160, 60), size=(24, 20))
     write_style(root / "styles" / f"s{i}.png", (200, 30 + 100 * i, 30), size=(20, 24))
-  cache = getattr(request.config, "cache", None)
-  cache_dir = str(cache.mkdir("jax-compilation-cache")) if cache is not None else str(
-      root / "jax-cache")
-  env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache_dir,
-             JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-             JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
-             MSNERF_PROGRESS_PERCENT="0.5")  # a progress line every step: kills land in steps
+  # A progress line every step: the kills land in training steps.
+  env = trainer_env(request, root / "jax-cache", MSNERF_PROGRESS_PERCENT="0.5")
   return {"root": root, "scene": scene, "nerf": nerf_run, "stylized": stylized,
           "content": str(root / "content"), "styles": str(root / "styles"), "env": env}
 
@@ -109,11 +104,6 @@ def run_to_end(argv, env, log, timeout=600):
     raise
   assert code == 0, open(log + ".err").read()[-3000:]
   return proc
-
-
-def flat_params(run):
-  return [(jax.tree_util.keystr(p), np.asarray(v))
-          for p, v in jax.tree_util.tree_leaves_with_path(msnerf_jax.load_run(run).params)]
 
 
 def kill_and_resume(trainer, inputs, tmp_path, kills, steps, seed):
@@ -272,8 +262,9 @@ def timed_run(argv, env, log):
 
 def kill_20_times(argv, env, tmp_path, outputs, seed, duration):
   """SIGKILLs `argv` 20 times at random moments of its `duration` (an uninterrupted run's
-  seconds; a fresh run that finishes first, its compilation cache warm, shortens it) and checks every artefact under `outputs` after each kill. Each re-run resumes
-  and so has less left to do; one that finishes before its kill is checked too, and the
+  seconds; a fresh run that finishes first, its compilation cache warm, shortens it) and
+  checks every artefact under `outputs` after each kill. Each re-run resumes and so has
+  less left to do; one that finishes before its kill is checked too, and the
   outputs are then removed so that the next kills land in every stage again. Ends with a
   run to the end. Returns the number of runs that finished before their kill."""
   import shutil  # pylint: disable=g-import-not-at-top

@@ -10,7 +10,6 @@ drops, so writes fail in the kernel with EFBIG instead of ENOSPC (see fault_inje
 
 import errno
 import functools
-import hashlib
 import json
 import os
 import re
@@ -19,14 +18,13 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 
 import numpy as np
 import pytest
 
-from conftest import fake_decoder, write_blender_scene
+from conftest import fake_decoder, flat_params, trainer_env, write_blender_scene
+from fault_injection import file_hashes as hashes
 
-import msnerf_jax
 from msnerf_jax import files
 from msnerf_jax.errors import UserError
 
@@ -91,12 +89,8 @@ def disk(tmp_path):
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory, request):
-  cache = getattr(request.config, "cache", None)
-  cache_dir = str(cache.mkdir("jax-compilation-cache")) if cache is not None else str(
-      tmp_path_factory.mktemp("jax-cache"))
-  return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache_dir,
-              JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-              JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", PYTHONPATH=os.path.dirname(HERE))
+  return trainer_env(request, tmp_path_factory.mktemp("jax-cache"),
+                     PYTHONPATH=os.path.dirname(HERE))  # fault_injection.py imports msnerf_jax
 
 
 @pytest.fixture(scope="module")
@@ -117,17 +111,6 @@ def with_fault(trigger, disk, snapshot, argv, env, no_estimate=False):
       env=env, capture_output=True, text=True, timeout=600)
 
 
-def hashes(folder):
-  out = {}
-  for root, _, names in os.walk(folder):
-    for name in names:
-      if name != "filler":
-        with open(os.path.join(root, name), "rb") as f:
-          out[os.path.relpath(os.path.join(root, name), folder)] = hashlib.sha256(
-              f.read()).hexdigest()
-  return out
-
-
 def temporaries(folder):
   return [os.path.join(r, n) for r, dirs, names in os.walk(folder) for n in names + dirs
           if n.startswith(files.TEMP_PREFIX) or "orbax-checkpoint-tmp" in n]
@@ -144,12 +127,6 @@ def assert_one_line_error(proc, *fragments):
   for fragment in fragments or (fault,):
     assert fragment in ours[0], ours[0]
   return ours[0]
-
-
-def flat_params(run):
-  import jax  # pylint: disable=g-import-not-at-top
-  return [(jax.tree_util.keystr(p), np.asarray(v))
-          for p, v in jax.tree_util.tree_leaves_with_path(msnerf_jax.load_run(run).params)]
 
 
 # ---------------------------------------------------------------------------- unit level

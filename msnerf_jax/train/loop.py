@@ -91,8 +91,10 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
   bar = None
 
   def save(done):
+    nonlocal last_save
     host = state_lib.unreplicate(state) if n_devices > 1 else state
     checkpoints.save(done, state_lib.checkpoint_tree(host))
+    last_save = (done, time.time())
     return host
 
   try:
@@ -117,7 +119,6 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
           curve.append({"step": done, "loss": loss, **values, "time": time.time() - t0})
         if done % checkpoint_every == 0 or done == steps:
           host = save(done)
-          last_save = (done, time.time())
           if callback is not None:
             t_cb = time.time()
             callback(done, host.params)
@@ -128,7 +129,6 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
           # at most a minute, and a quick second request is not slowed by a save.
           if last_save is None or time.time() - last_save[1] >= stop_save_after:
             save(done)
-            last_save = (done, time.time())
           if history:  # the curve up to the checkpoint the next run resumes from
             append_history(run_dir, [r for r in curve if r["step"] <= last_save[0]])
           raise Interrupted(signum, done, last_save[0])
