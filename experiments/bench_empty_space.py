@@ -61,7 +61,7 @@ def weight_stats(scene, params, config, views, stride=4, chunk=4096):
   dists, spreads = [], []
   for i in views:
     rays = jax.tree_util.tree_map(lambda x: np.asarray(x)[::stride, ::stride].reshape(
-        -1, *x.shape[2:]), scene.camera_rays(scene.c2w[i]))
+        -1, *x.shape[2:]), scene.camera_rays(int(i)))
     n = rays["origins"].shape[0]
     for start in range(0, n, chunk):
       piece = {k: v[start:start + chunk] for k, v in rays.items()}
@@ -144,7 +144,7 @@ def main():
     nerf.train(scene, config, data_config, run, progress=False, callback=on_checkpoint)
     table[name] = {"config": dataclasses.asdict(config), "rows": rows}
     params = msnerf_jax.load_run(run).params
-    renders = [render_view(scene, params, config, scene.c2w[i]) for i in views]
+    renders = [render_view(scene, params, config, int(i)) for i in views]
     table[name]["figure"] = renders
   # Figure: per variant, render | opacity | depth of each view.
   lo = min(float(np.percentile(r["depth"][r["accumulation"] > 0.5], 1))

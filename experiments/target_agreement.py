@@ -63,7 +63,7 @@ def main():
 
   def geo(i):
     if i not in geometry:
-      geometry[i] = views.render_view(scene, nerf_run.params, nerf_run.config, scene.c2w[i])
+      geometry[i] = views.render_view(scene, nerf_run.params, nerf_run.config, int(i))
     return geometry[i]
 
   # Every style's view i on the channels of one image [H, W, 3M]: one warp per neighbour.
@@ -83,7 +83,7 @@ def main():
     weights = masks[..., None].astype(np.float32)
     average = (warped * weights).sum(0) / np.maximum(weights.sum(0), 1.0)
     target = stacked(t)
-    renders = (views.render_styles(scene, ms_run.params, ms_run.config, scene.c2w[t],
+    renders = (views.render_styles(scene, ms_run.params, ms_run.config, int(t),
                                    data.vectors)["rgb"] if ms_run else None)
     for m, name in enumerate(data.names):
       c = slice(3 * m, 3 * m + 3)

@@ -12,9 +12,14 @@ T = TypeVar("T")
 class DataConfig:
   """Which scene to load and how (saved with a run so eval/render reload the same views)."""
   path: str = ""
-  format: str = "auto"  # "auto", "blender" or "llff".
-  downscale: int = 0  # 0 = format default (Blender 1, LLFF 8). LLFF: reads images_{factor}.
-  llff_holdout: int = 8  # LLFF: every n-th image is held out for val/test.
+  format: str = "auto"  # "auto", "blender", "llff", "transforms" or "colmap".
+  # 0 = format default (Blender 1, LLFF 8, captures: the smallest power of two that brings
+  # the longer side to 400 px or less). LLFF and captures read images_{factor} when present.
+  downscale: int = 0
+  llff_holdout: int = 8  # LLFF, and captures without a split: every n-th image is held out.
+  # Captures: "auto" (decided from the cameras), "forward-facing" (LLFF's recentring + NDC)
+  # or "object" (centred on the point the cameras look at, bounds from the data).
+  layout: str = "auto"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,14 +68,15 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
   """The named preset for a scene format, with explicit overrides applied last.
 
   `paper`: the reference code's defaults (128 fine samples on Blender, 64 and sigma noise
-  1.0 on LLFF; white backgrounds). `cpu`: a smaller network and fewer samples tuned for a
+  1.0 on LLFF and on captures; white backgrounds). `cpu`: a smaller network and fewer samples tuned for a
   2-core laptop, trained against random backgrounds on Blender scenes (no white fog).
   Overriding net_depth without skip_layer puts the skip connection after the middle layer,
   where both presets have it.
   """
   if name not in PRESETS:
     raise UserError(f"--preset {name}: unknown preset (choose from {', '.join(PRESETS)})")
-  llff = scene_format == "llff"
+  # Photos without alpha (LLFF and users' captures) train as the reference trains LLFF.
+  llff = scene_format != "blender"
   if name == "paper":
     config = NerfConfig(
         n_fine=64 if llff else 128,

@@ -53,7 +53,7 @@ def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
   idx = scene.split(split)
   rows, renders = [], []
   for i in progress_bar(idx, desc=f"eval {split}", disable=not progress, leave=False):
-    out = render_view(scene, params, config, scene.c2w[i], chunk)
+    out = render_view(scene, params, config, int(i), chunk)
     target = scene.images[i]
     row = {"view": os.path.basename(scene.image_paths[i]),
            "psnr": float(metrics.psnr(out["rgb"], target)),
@@ -77,7 +77,7 @@ def evaluate_multistyle(scene: Scene, stylized: StylizedData, params, config: Mu
   idx = scene.split(split)
   rows = []
   for i in progress_bar(idx, desc=f"eval {split}", disable=not progress, leave=False):
-    out = render_styles(scene, params, config, scene.c2w[i], stylized.vectors, chunk)
+    out = render_styles(scene, params, config, int(i), stylized.vectors, chunk)
     for m, name in enumerate(stylized.names):
       target = stylized.images[m, i].astype(np.float32) / 255.0
       rows.append({"style": name, "view": int(i),

@@ -39,7 +39,9 @@ STAGES = ("adain", "nerf", "stylized", "multistyle", "renders")
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """Sizes and lengths of every stage (the `msnerf pipeline` options)."""
-  downscale: int = 0  # scene image downscale (0 = Blender 1, LLFF 8).
+  downscale: int = 0  # scene image downscale (0 = the format's default).
+  format: str = "auto"  # scene format (DataConfig.format).
+  layout: str = "auto"  # capture layout (DataConfig.layout).
   adain_steps: int = 2000
   adain_size: int = 96  # side of the decoder's training crops (images are resized to it).
   adain_batch: int = 2
@@ -83,8 +85,9 @@ def _save_record(out: str, record: Dict[str, Any]) -> None:
 class _Scene:
   """The scene, loaded on first use (a fully cached re-run never loads it)."""
 
-  def __init__(self, data: str, downscale: int):
-    self.config = config_lib.DataConfig(path=os.path.abspath(data), downscale=downscale)
+  def __init__(self, data: str, s: "Settings"):
+    self.config = config_lib.DataConfig(path=os.path.abspath(data), downscale=s.downscale,
+                                        format=s.format, layout=s.layout)
     self._loaded = None
 
   def get(self):
@@ -162,7 +165,8 @@ def _run_stylized(out, data, decoder, styles, s: Settings, progress):
   from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
   folder = os.path.join(out, "stylized")
   stylize.stylize_scene_folder(data, decoder, styles, folder, include_original=True,
-                               downscale=s.downscale, progress=progress)
+                               downscale=s.downscale, progress=progress, scene_format=s.format,
+                               layout=s.layout)
   return [folder]
 
 
@@ -257,11 +261,13 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
   styles = [os.path.abspath(p) for p in styles]
   os.makedirs(out, exist_ok=True)
   record = _load_record(out)
-  scene = _Scene(data, s.downscale)
+  scene = _Scene(data, s)
   from msnerf_jax.data.stylized import ORIGINAL, style_name  # pylint: disable=g-import-not-at-top
   names = [style_name(p) for p in styles] + [ORIGINAL]
   decoder_dir = os.path.abspath(decoder) if decoder else os.path.join(out, "adain")
   base = {"data": data, "downscale": s.downscale, "seed": s.seed}
+  if (s.format, s.layout) != ("auto", "auto"):  # records of earlier versions stay valid
+    base.update(format=s.format, layout=s.layout)
   keys = {
       "adain": {**base, "styles": styles, "config": config_lib.to_dict(adain_config(s))},
       "nerf": {**base, "preset": s.preset, "steps": s.nerf_steps, "batch": s.nerf_batch_rays},
@@ -277,7 +283,8 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
     if s.nerf_steps:
       return s.nerf_steps
     from msnerf_jax.data.scene import detect_format  # pylint: disable=g-import-not-at-top
-    return config_lib.nerf_preset(s.preset, detect_format(data)).steps
+    return config_lib.nerf_preset(s.preset, detect_format(data) if s.format == "auto"
+                                  else s.format).steps
 
   stages = {
       "adain": (lambda: _checkpoint_step(os.path.join(out, "adain")) >= s.adain_steps,

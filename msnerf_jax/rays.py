@@ -5,10 +5,12 @@ from typing import Tuple
 import chex
 import jax.numpy as jnp
 
+from msnerf_jax import cameras
 
-def get_rays(height: int, width: int, K: jnp.ndarray, c2w: jnp.ndarray
+
+def get_rays(height: int, width: int, K: jnp.ndarray, c2w: jnp.ndarray, coeffs=None
              ) -> Tuple[jnp.ndarray, jnp.ndarray]:
-  """Rays through every pixel of a pinhole camera, as in the reference NeRF code.
+  """Rays through every pixel of a camera, as in the reference NeRF code for a pinhole.
 
   OpenGL camera: x right, y up, looking down -z. Pixels sit at integer coordinates
   (i, j) = (column, row), no half-pixel offset (reference behaviour).
@@ -17,6 +19,7 @@ def get_rays(height: int, width: int, K: jnp.ndarray, c2w: jnp.ndarray
     height, width: image size in pixels.
     K: [3, 3] intrinsics (focal lengths K[0,0], K[1,1]; principal point K[0,2], K[1,2]).
     c2w: [3, 4] or [4, 4] camera-to-world matrix.
+    coeffs: [5] lens distortion (msnerf_jax.cameras) or None: rays are undistorted.
   Returns:
     origins, directions: each [height, width, 3]; directions are not normalised (their
     z component in camera space is -1), as volume rendering scales intervals by their norm.
@@ -28,8 +31,7 @@ def get_rays(height: int, width: int, K: jnp.ndarray, c2w: jnp.ndarray
   c2w = c2w[:3, :4]
   i, j = jnp.meshgrid(jnp.arange(width, dtype=jnp.float32),
                       jnp.arange(height, dtype=jnp.float32), indexing="xy")
-  camera_dirs = jnp.stack(
-      [(i - K[0, 2]) / K[0, 0], -(j - K[1, 2]) / K[1, 1], -jnp.ones_like(i)], axis=-1)
+  camera_dirs = cameras.pixel_directions(K, i, j, coeffs)
   directions = camera_dirs @ c2w[:3, :3].T  # rotate into the world frame.
   origins = jnp.broadcast_to(c2w[:3, 3], directions.shape)
   return origins, directions
@@ -71,21 +73,20 @@ def normalize(v: jnp.ndarray) -> jnp.ndarray:
   return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def pixel_rays(K: jnp.ndarray, c2w: jnp.ndarray, rows: jnp.ndarray, cols: jnp.ndarray
-               ) -> Tuple[jnp.ndarray, jnp.ndarray]:
+def pixel_rays(K: jnp.ndarray, c2w: jnp.ndarray, rows: jnp.ndarray, cols: jnp.ndarray,
+               coeffs=None) -> Tuple[jnp.ndarray, jnp.ndarray]:
   """Rays through chosen pixels, each with its own camera (training batches).
 
   Args:
-    K: [3, 3] intrinsics shared by all cameras.
+    K: [3, 3] intrinsics shared by all cameras, or [..., 3, 3] one per ray.
     c2w: [..., 3, 4] one camera per ray.
     rows, cols: [...] integer pixel coordinates.
+    coeffs: [..., 5] lens distortion per ray (msnerf_jax.cameras), or None (pinholes).
   Returns:
     origins, directions: [..., 3], identical to `get_rays` at those pixels.
   """
-  i = cols.astype(jnp.float32)
-  j = rows.astype(jnp.float32)
-  camera_dirs = jnp.stack(
-      [(i - K[0, 2]) / K[0, 0], -(j - K[1, 2]) / K[1, 1], -jnp.ones_like(i)], axis=-1)
+  camera_dirs = cameras.pixel_directions(K, cols.astype(jnp.float32),
+                                         rows.astype(jnp.float32), coeffs)
   directions = jnp.einsum("...k,...ik->...i", camera_dirs, c2w[..., :3, :3])
   origins = jnp.broadcast_to(c2w[..., :3, 3], directions.shape)
   return origins, directions

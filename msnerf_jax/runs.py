@@ -162,6 +162,17 @@ def scene_of(run: Run):
   return scene, data
 
 
+def run_scene(run_dir: str):
+  """The scene (its cameras and normalised world) a run folder was trained on, without
+  loading its checkpoint."""
+  record = read_run_file(run_dir)
+  source = os.path.join(run_dir, RUN_FILE)
+  if "data" not in record:
+    raise UserError(f"{source}: a {record.get('kind')!r} run has no scene")
+  values = drop_legacy_data_keys(dict(record["data"]), source)
+  return load_scene(config_lib.from_dict(config_lib.DataConfig, values, source))[0]
+
+
 def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   run = load_run(run_dir, kind)

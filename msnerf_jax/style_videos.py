@@ -9,7 +9,7 @@ from msnerf_jax import styles as styles_lib
 from msnerf_jax import video
 from msnerf_jax.progress import progress_bar
 
-# (c2w [3, 4], K style vectors [1024]) -> K images [K, H, W, 3] in [0, 1].
+# (camera: c2w [3, 4] or cameras.Camera, K style vectors [1024]) -> K images [K, H, W, 3].
 StyleRenderer = Callable[[np.ndarray, Sequence[np.ndarray]], np.ndarray]
 
 
@@ -20,9 +20,10 @@ def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRe
                                            np.stack(styles), chunk)["rgb"]
 
 
-def spaced_views(poses: np.ndarray, n: int) -> np.ndarray:
-  """n cameras [n, 3, 4] from `poses` [P, 3, 4], (P - 1) / n apart, starting at the first."""
-  return poses[np.linspace(0, len(poses) - 1, max(1, n) + 1)[:-1].round().astype(int)]
+def spaced_views(poses: Sequence[Any], n: int) -> List[Any]:
+  """n cameras of `poses` (c2w [P, 3, 4] or cameras.Camera), (P - 1) / n apart, from the
+  first."""
+  return [poses[i] for i in np.linspace(0, len(poses) - 1, max(1, n) + 1)[:-1].round().astype(int)]
 
 
 def write_render_videos(render: StyleRenderer, poses: np.ndarray, main: np.ndarray,

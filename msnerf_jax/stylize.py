@@ -237,7 +237,8 @@ def check_weights(weights: Sequence[float], n_styles: int) -> None:
 def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str], out: str,
                          alphas: Optional[Sequence[float]] = None, include_original: bool = False,
                          downscale: int = 0, stylize_scale: int = 1, scene_stats: bool = False,
-                         progress: bool = True) -> Tuple[Dict[str, Any], Scene]:
+                         progress: bool = True, scene_format: str = "auto",
+                         layout: str = "auto") -> Tuple[Dict[str, Any], Scene]:
   """Writes (or completes) the stylized dataset of the scene folder `data` in `out`: every
   view in every style image by the AdaIN decoder of `decoder_dir` (`msnerf stylize-scene`).
 
@@ -245,6 +246,7 @@ def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str]
     alphas: strength per style in [0, 1] (default 1 each).
     include_original: add the unstylized views as the style "original".
     downscale: the scene's image downscale (0 = the format's default).
+    scene_format, layout: as DataConfig's (a capture read as COLMAP or LLFF, ...).
     stylize_scale: stylize each view enlarged this many times (see `stylize_image`).
     scene_stats: normalise every view by the training views' statistics
       (`scene_content_stats`) instead of its own.
@@ -253,8 +255,8 @@ def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str]
   """
   alphas = list(alphas) if alphas is not None else [1.0] * len(style_paths)
   decoder = load_decoder(decoder_dir)
-  scene, data_config = load_scene(config_lib.DataConfig(path=os.path.abspath(data),
-                                                        downscale=downscale))
+  scene, data_config = load_scene(config_lib.DataConfig(
+      path=os.path.abspath(data), downscale=downscale, format=scene_format, layout=layout))
   encoder = vgg.load_vgg_params()
   summary = stylized_lib.stylize_scene(
       scene, data_config,

@@ -13,16 +13,21 @@ from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
 
 
-def render_view(scene: Scene, params, config: NerfConfig, c2w: np.ndarray,
+def render_view(scene: Scene, params, config: NerfConfig, camera,
                 chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
-  """Renders one camera of the scene: rgb [H, W, 3], depth, disparity, accumulation [H, W]."""
-  return render_lib.render_image(NerfField(config), params, scene.camera_rays(c2w), config,
+  """Renders one camera of the scene: rgb [H, W, 3], depth, disparity, accumulation [H, W].
+
+  camera: a dataset view's index (its own intrinsics and lens), a c2w [3, 4] seen with the
+  scene's render camera, or a cameras.Camera (a camera path file's): Scene.camera_rays.
+  """
+  return render_lib.render_image(NerfField(config), params, scene.camera_rays(camera), config,
                                  scene.white_background, chunk)
 
 
-def render_styles(scene: Scene, params, config: MultistyleConfig, c2w: np.ndarray,
+def render_styles(scene: Scene, params, config: MultistyleConfig, camera,
                   styles: np.ndarray, chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
-  """One camera in K styles at once (a style sweep): rgb [K, H, W, 3], depth [K, H, W] ..."""
+  """One camera (as render_view's) in K styles at once (a style sweep): rgb [K, H, W, 3],
+  depth [K, H, W] ..."""
   styles = jnp.asarray(np.atleast_2d(styles), jnp.float32)
-  return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(c2w),
+  return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(camera),
                                  config.nerf, scene.white_background, chunk, styles=styles)

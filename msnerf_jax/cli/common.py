@@ -9,9 +9,33 @@ def print_summary(title, items):
     print(f"  {k:<{width}}  {v}")
 
 
-def path_poses(scene, frames: int):
-  """The scene's render path, resampled to `frames` cameras (0 = all): `Scene.path_poses`."""
-  return scene.path_poses(frames)
+def add_camera_path_arguments(parser) -> None:
+  """--camera-path, --frames and --fps of the render verbs."""
+  parser.add_argument("--camera-path", default=None, metavar="FILE",
+                      help="render the cameras of this nerfstudio camera_path.json (its size, "
+                           "field of view and fps) instead of the scene's path (`msnerf nerf "
+                           "camera-path` writes the scene's path as one, to edit)")
+  parser.add_argument("--frames", type=int, default=0, help="number of frames (0 = whole path)")
+  parser.add_argument("--fps", type=float, default=None,
+                      help="frames per second (default: the camera path's, else 24)")
+
+
+def render_cameras(scene, args):
+  """(cameras, fps, size text) the render verbs draw: the --camera-path file's cameras or the
+  scene's path, resampled to --frames."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  if args.frames < 0:
+    raise UserError(f"--frames {args.frames}: must be >= 0")
+  if args.fps is not None and not args.fps > 0:
+    raise UserError(f"--fps {args.fps}: must be positive")
+  if args.camera_path is None:
+    return scene.path_poses(args.frames), args.fps or 24, f"{scene.width}x{scene.height}"
+  from msnerf_jax.data.camera_path import read_camera_path  # pylint: disable=g-import-not-at-top
+  cameras, fps = read_camera_path(args.camera_path)
+  if args.frames > 0:
+    cameras = [cameras[i] for i in np.linspace(0, len(cameras) - 1, args.frames).round().astype(int)]
+  return cameras, args.fps or fps, f"{cameras[0].width}x{cameras[0].height}"
 
 
 def output_stem(path: str) -> str:

@@ -27,8 +27,12 @@ HELP = {
     "style_hidden2": "width of the style MLP's second hidden layer",
     "normalize_styles": "standardise each style vector before the style MLPs",
     # DataConfig
-    "format": "scene format: auto, blender or llff",
-    "llff_holdout": "LLFF: every n-th image is held out for val/test",
+    "format": "scene format: auto, blender, llff, transforms (nerfstudio / instant-ngp "
+              "transforms.json) or colmap (sparse/0 model)",
+    "llff_holdout": "LLFF, and captures without a split: every n-th image is held out for "
+                    "val/test",
+    "layout": "captures: auto, forward-facing (LLFF recentring + NDC) or object (centred on "
+              "what the cameras look at, bounds from the data)",
 }
 
 

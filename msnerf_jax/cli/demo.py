@@ -34,7 +34,8 @@ def register(commands, formatter):
       epilog="example: msnerf demo --out runs/demo")
   p.add_argument("--out", default=os.path.join("runs", "demo"), help="output folder")
   p.add_argument("--data", default=None,
-                 help="a real scene folder instead of the built-in one (Blender or LLFF)")
+                 help="a real scene folder instead of the built-in one (Blender, LLFF, a "
+                      "transforms.json or COLMAP capture)")
   p.add_argument("--styles", nargs="+", default=None, metavar="IMG",
                  help="real style images instead of the built-in ones")
   p.add_argument("--decoder", default=None, metavar="ADAIN_RUN",

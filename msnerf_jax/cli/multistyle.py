@@ -5,7 +5,8 @@ import os
 import time
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (load_run_and_scene, output_stem, print_summary,
+from msnerf_jax.cli.common import (add_camera_path_arguments, load_run_and_scene, output_stem,
+                                   print_summary, render_cameras,
                                    print_training_summary)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
@@ -31,7 +32,10 @@ def register(commands, formatter):
   p.add_argument("--include-original", action="store_true",
                  help="add the unstylized views as a style named 'original' (strength control)")
   p.add_argument("--downscale", type=int, default=0,
-                 help="image downscale factor, as for `msnerf nerf train` (0 = Blender 1, LLFF 8)")
+                 help="image downscale factor, as for `msnerf nerf train` (0 = the format's "
+                      "default)")
+  p.add_argument("--format", default="auto", help="scene format, as for `msnerf nerf train`")
+  p.add_argument("--layout", default="auto", help="capture layout, as for `msnerf nerf train`")
   p.add_argument("--stylize-scale", type=int, default=1, metavar="N",
                  help="stylize each view enlarged N times, then shrink the result: strokes N x "
                       "finer relative to the scene (e.g. 4 at --downscale 8 stylizes lego at "
@@ -147,8 +151,7 @@ def register(commands, formatter):
                  help="styles of the morph video and the grid (default: the first two)")
   p.add_argument("--grid-steps", type=int, default=5, help="interpolation steps in the grid")
   p.add_argument("--grid-views", type=int, default=3, help="views (rows) in the grid")
-  p.add_argument("--frames", type=int, default=0, help="number of frames (0 = whole path)")
-  p.add_argument("--fps", type=int, default=24, help="frames per second")
+  add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_render)
 
@@ -159,7 +162,8 @@ def cmd_stylize_scene(args):
   summary, scene = stylize_lib.stylize_scene_folder(
       args.data, args.decoder, args.styles, args.out, alphas=args.alphas,
       include_original=args.include_original, downscale=args.downscale,
-      stylize_scale=args.stylize_scale, scene_stats=args.scene_stats)
+      stylize_scale=args.stylize_scale, scene_stats=args.scene_stats, scene_format=args.format,
+      layout=args.layout)
   print_summary("stylized dataset done", [
       ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
       ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),
@@ -220,7 +224,7 @@ def cmd_eval(args):
   atomic_write_bytes(os.path.join(out_dir, "metrics.json"), json.dumps(result, indent=2).encode())
   # One figure: a held-out view, target above render, one column per style.
   i = scene.split(args.split)[0]
-  out = render_styles(scene, run.params, run.config, scene.c2w[i], stylized.vectors,
+  out = render_styles(scene, run.params, run.config, int(i), stylized.vectors,
                       args.chunk)
   figure = video.write_grid(os.path.join(out_dir, "targets_vs_renders.png"),
                             [list(stylized.images[:, i] / 255.0), list(out["rgb"])])
@@ -250,15 +254,15 @@ def cmd_render(args):
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
                                              args.t, args.strength)
   morph, ends = styles_lib.morph_ends(vectors, cache, args.morph)
-  poses = scene.path_poses(args.frames)
+  poses, fps, size = render_cameras(scene, args)
   t0 = time.time()
   written = style_videos.write_render_videos(
       style_videos.style_renderer(run, scene, args.chunk), poses, main, ends,
-      output_stem(args.out), args.fps, args.grid_steps, args.grid_views)
+      output_stem(args.out), fps, args.grid_steps, args.grid_views)
   seconds = time.time() - t0
   print_summary("multi-style render done", [
       ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
-      ("frames", f"{len(poses)} of {scene.width}x{scene.height}"),
+      ("frames", f"{len(poses)} of {size}"),
       ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])
 
 

@@ -1,4 +1,4 @@
-"""`msnerf nerf train | eval | render`: the geometry stage."""
+"""`msnerf nerf train | eval | render | camera-path`: the geometry stage."""
 
 import argparse
 import json
@@ -8,8 +8,8 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (load_run_and_scene, output_stem, path_poses, print_summary,
-                                   print_training_summary)
+from msnerf_jax.cli.common import (add_camera_path_arguments, load_run_and_scene, output_stem,
+                                   print_summary, print_training_summary, render_cameras)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
 from msnerf_jax.errors import UserError
@@ -83,10 +83,25 @@ def register(commands, formatter):
                        "spiral) to FILE.mp4 and FILE.gif, and depth to FILE_depth.*.")
   p.add_argument("--run", required=True, help="run folder made by `msnerf nerf train`")
   p.add_argument("--out", required=True, help="output file stem (.mp4/.gif are added)")
-  p.add_argument("--frames", type=int, default=0, help="number of frames (0 = whole path)")
-  p.add_argument("--fps", type=int, default=24, help="frames per second")
+  add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_render)
+
+  p = verbs.add_parser("camera-path", formatter_class=formatter,
+                       help="write the scene's render path as a nerfstudio camera_path.json",
+                       description="Write the render path of a run's scene (Blender: orbit; "
+                       "LLFF: spiral; captures: orbit or spiral) as a nerfstudio "
+                       "camera_path.json in the scene's normalised world, to edit, script or "
+                       "render with --camera-path.",
+                       epilog="example: msnerf nerf camera-path --run runs/cup --out path.json "
+                              "--frames 50 && msnerf nerf render --run runs/cup --out fly "
+                              "--camera-path path.json")
+  p.add_argument("--run", required=True, help="run folder made by `msnerf nerf train` (or a "
+                 "multi-style run)")
+  p.add_argument("--out", required=True, help="the .json file to write")
+  p.add_argument("--frames", type=int, default=0, help="number of cameras (0 = whole path)")
+  p.add_argument("--fps", type=float, default=24, help="frames per second recorded in the file")
+  p.set_defaults(func=cmd_camera_path)
 
 
 def cmd_train(args):
@@ -122,6 +137,7 @@ def cmd_train(args):
       args.preset, data_config.format, **config_overrides(args, config_lib.NerfConfig)))
   print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
         f"views of {scene.width}x{scene.height}; "
+        + (f"{scene.layout}; " if scene.layout else "")
         + (f"config of {args.config}" if args.config else f"preset {args.preset}")
         + (f"; style {args.style} of {args.stylized}" if style else ""))
   summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices, style=style)
@@ -172,7 +188,7 @@ def cmd_render(args):
   from msnerf_jax import video
   from msnerf_jax.views import render_view
   run, scene = _load(args.run)
-  poses = path_poses(scene, args.frames)
+  poses, fps, size = render_cameras(scene, args)
   stem = output_stem(args.out)
   t0 = time.time()
   frames, depths = [], []
@@ -185,10 +201,27 @@ def cmd_render(args):
       if any((d["accumulation"] > 0.5).any() for d in depths) else np.array([0.0, 1.0])
   lo, hi = np.percentile(valid, 1), np.percentile(valid, 99)
   depth_frames = [video.depth_to_image(d["depth"], d["accumulation"], lo, hi) for d in depths]
-  written = video.write_videos(stem, frames, args.fps)
-  written += video.write_videos(stem + "_depth", depth_frames, args.fps)
+  written = video.write_videos(stem, frames, fps)
+  written += video.write_videos(stem + "_depth", depth_frames, fps)
   seconds = time.time() - t0
   print_summary("NeRF render done", [
-      ("frames", f"{len(frames)} of {scene.width}x{scene.height}"),
+      ("frames", f"{len(frames)} of {size}"),
       ("time", f"{seconds:.1f} s ({len(frames) / seconds:.2f} frames/s)"),
       ("written", ", ".join(written))])
+
+
+def cmd_camera_path(args):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.camera_path import write_camera_path
+  from msnerf_jax.runs import run_scene
+  if args.frames < 0:
+    raise UserError(f"--frames {args.frames}: must be >= 0")
+  if not args.fps > 0:
+    raise UserError(f"--fps {args.fps}: must be positive")
+  scene = run_scene(args.run)
+  poses = scene.path_poses(args.frames)
+  write_camera_path(args.out, poses, scene.K, scene.height, scene.width, args.fps)
+  print_summary("camera path written", [
+      ("cameras", f"{len(poses)} of {scene.width}x{scene.height}, {args.fps:g} fps"),
+      ("written", args.out),
+      ("next", f"msnerf nerf render --run {args.run} --out video --camera-path {args.out}")])

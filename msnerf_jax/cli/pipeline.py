@@ -5,7 +5,10 @@ import dataclasses
 from msnerf_jax import config as config_lib
 
 _HELP = {
-    "downscale": "scene image downscale factor (0 = Blender 1, LLFF 8)",
+    "downscale": "scene image downscale factor (0 = the format's default: Blender 1, LLFF 8, "
+                 "captures to 400 px or less)",
+    "format": "scene format: auto, blender, llff, transforms or colmap",
+    "layout": "captures: auto, forward-facing or object",
     "adain_steps": "AdaIN decoder training steps",
     "adain_size": "side of the decoder's square training crops (multiple of 8)",
     "adain_batch": "crops per decoder step",

@@ -109,18 +109,36 @@ def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0
   focal = poses[0, 2, 4] * h / poses[0, 0, 4]  # hwf is stored for the full-size images.
   # LLFF stores [down, right, back]; NeRF wants [right, up, back].
   poses = np.concatenate([poses[:, :, 1:2], -poses[:, :, 0:1], poses[:, :, 2:4]], 2)
-  scale = 1.0 / (bounds.min() * bd_factor)
-  poses[:, :3, 3] *= scale
-  bounds = bounds * scale
-  poses = recenter_poses(poses)
   check_poses(poses, pb_path, files)
-  render_poses = spiral_path(poses, bounds)
-  n = len(images)
-  test = np.arange(n)[::holdout] if holdout > 0 else np.array([], np.int64)
-  train = np.array([i for i in range(n) if i not in set(test)])
+  poses, bounds, render_poses = forward_facing(poses, bounds, bd_factor)
   K = np.array([[focal, 0, 0.5 * w], [0, focal, 0.5 * h], [0, 0, 1]], np.float32)
   return Scene(images=images, c2w=poses.astype(np.float32), K=K, near=float(bounds.min() * 0.9),
                far=float(bounds.max()), ndc=True, white_background=False,
-               splits={"train": train, "val": test, "test": test},
+               splits=holdout_splits(len(images), holdout),
                render_poses=render_poses.astype(np.float32), format="llff",
                image_paths=tuple(files))
+
+
+def forward_facing(poses: np.ndarray, bounds: np.ndarray, bd_factor: float = 0.75):
+  """LLFF's normalisation of a forward-facing capture (reference code): the scene scaled so
+  the nearest depth bound is 1 / bd_factor, the poses recentred on their average camera.
+
+  Args:
+    poses: [N, 3, 4] camera-to-world (OpenGL axes); bounds: [N, 2] near/far depths.
+  Returns:
+    (poses [N, 3, 4], bounds [N, 2], spiral render path [120, 3, 4]), float64.
+  """
+  scale = 1.0 / (bounds.min() * bd_factor)
+  poses = np.array(poses, np.float64)
+  poses[:, :3, 3] *= scale
+  bounds = bounds * scale
+  poses = recenter_poses(poses)
+  return poses, bounds, spiral_path(poses, bounds)
+
+
+def holdout_splits(n: int, holdout: int):
+  """Splits of n views with every `holdout`-th view (from the first) held out as val and test
+  (holdout 0: none)."""
+  test = np.arange(n)[::holdout] if holdout > 0 else np.array([], np.int64)
+  train = np.array([i for i in range(n) if i not in set(test.tolist())])
+  return {"train": train, "val": test, "test": test}

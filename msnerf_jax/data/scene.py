@@ -7,6 +7,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import jax.numpy as jnp
 import numpy as np
 
+from msnerf_jax import cameras as cameras_lib
 from msnerf_jax import rays as rays_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.errors import UserError
@@ -17,8 +18,12 @@ class Scene:
   """A loaded scene. Arrays are numpy on the host.
 
   images: [N, H, W, 3] float32 in [0, 1]; c2w: [N, 3, 4] camera-to-world (OpenGL axes);
-  K: [3, 3]; splits: name -> indices into images; render_poses: [P, 3, 4] a camera path;
-  alphas: [N, H, W] uint8 opacity of RGBA images (Blender), None when the photos have none.
+  K: [3, 3] the render camera's intrinsics (the first view's; render paths use it);
+  splits: name -> indices into images; render_poses: [P, 3, 4] a camera path;
+  alphas: [N, H, W] uint8 opacity of RGBA images (Blender), None when the photos have none;
+  Ks: [N, 3, 3] per-view intrinsics when views differ (None: every view has K);
+  distortion: [N, 5] per-view lens distortion (msnerf_jax.cameras; None: pinholes);
+  layout: how the scene was normalised (captures), printed by the CLI.
   """
   images: np.ndarray
   c2w: np.ndarray
@@ -32,6 +37,9 @@ class Scene:
   format: str
   image_paths: Tuple[str, ...]
   alphas: Optional[np.ndarray] = None
+  Ks: Optional[np.ndarray] = None
+  distortion: Optional[np.ndarray] = None
+  layout: str = ""
 
   @property
   def height(self) -> int:
@@ -57,9 +65,40 @@ class Scene:
       poses = poses[np.linspace(0, len(poses) - 1, frames).round().astype(int)]
     return poses
 
-  def camera_rays(self, c2w: np.ndarray) -> Dict[str, jnp.ndarray]:
-    """ray_bundle for every pixel of one camera: [H, W, ...]."""
-    origins, directions = rays_lib.get_rays(self.height, self.width, self.K, c2w)
+  @property
+  def intrinsics(self) -> np.ndarray:
+    """Per-view intrinsics [N, 3, 3]."""
+    if self.Ks is not None:
+      return self.Ks
+    return np.broadcast_to(self.K, (len(self.images), 3, 3))
+
+  def view_camera(self, view: int) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """(K [3, 3], distortion [5] or None) of dataset view `view`."""
+    coeffs = None if self.distortion is None else self.distortion[view]
+    return self.intrinsics[view], coeffs
+
+  def cameras_of(self, views: np.ndarray) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """(K, distortion) of views [n] as training batches take them: K [3, 3] when every view
+    shares it, else [n, 3, 3]; distortion [n, 5] or None (pinholes)."""
+    K = self.K if self.Ks is None else self.Ks[views]
+    return K, None if self.distortion is None else self.distortion[views]
+
+  def camera_rays(self, camera) -> Dict[str, jnp.ndarray]:
+    """ray_bundle for every pixel of one camera: [H, W, ...].
+
+    camera: an int, dataset view `camera` with its own pose, intrinsics and distortion; a
+    c2w [3, 4] (a render path's camera), seen with the render camera K; or a
+    cameras.Camera (a camera path file's, any size and intrinsics).
+    """
+    if isinstance(camera, cameras_lib.Camera):
+      origins, directions = rays_lib.get_rays(camera.height, camera.width, camera.K,
+                                              camera.c2w, camera.coeffs)
+    elif isinstance(camera, (int, np.integer)):
+      K, coeffs = self.view_camera(int(camera))
+      origins, directions = rays_lib.get_rays(self.height, self.width, K, self.c2w[camera],
+                                              coeffs)
+    else:
+      origins, directions = rays_lib.get_rays(self.height, self.width, self.K, camera)
     return self.bundle(origins, directions)
 
   def bundle(self, origins, directions) -> Dict[str, jnp.ndarray]:
@@ -88,7 +127,8 @@ def drop_legacy_data_keys(values: Dict[str, Any], source: str) -> Dict[str, Any]
 
 
 def detect_format(path: str) -> str:
-  """"blender" if transforms_*.json exist, "llff" if poses_bounds.npy exists."""
+  """"blender" if transforms_*.json exist, "transforms" if transforms.json does (nerfstudio,
+  instant-ngp), "llff" if poses_bounds.npy does, "colmap" if a sparse/0 model does."""
   if not os.path.exists(path):
     raise UserError(f"{path}: no such scene folder")
   if not os.path.isdir(path):
@@ -96,9 +136,15 @@ def detect_format(path: str) -> str:
   names = os.listdir(path)
   if any(n.startswith("transforms_") and n.endswith(".json") for n in names):
     return "blender"
+  if "transforms.json" in names:
+    return "transforms"
   if "poses_bounds.npy" in names:
     return "llff"
-  raise UserError(f"{path}: not a scene folder (no transforms_*.json and no poses_bounds.npy)")
+  from msnerf_jax.data import colmap  # pylint: disable=g-import-not-at-top
+  if colmap.find_model(path) is not None:
+    return "colmap"
+  raise UserError(f"{path}: not a scene folder (no transforms_*.json, transforms.json, "
+                  "poses_bounds.npy or COLMAP sparse/0 model)")
 
 
 def load_scene(config: DataConfig) -> Tuple[Scene, DataConfig]:
@@ -108,8 +154,13 @@ def load_scene(config: DataConfig) -> Tuple[Scene, DataConfig]:
     (scene, resolved config): the config has the detected format and the actual downscale.
   """
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.data import blender, llff
+  from msnerf_jax.data import blender, captures, llff
   fmt = detect_format(config.path) if config.format == "auto" else config.format
+  if fmt in ("transforms", "colmap"):
+    return captures.load_capture(config, fmt)
+  if config.layout != "auto":
+    raise UserError(f"--layout {config.layout}: only for captures (transforms.json, COLMAP); "
+                    f"{fmt} scenes have their paper's layout")
   if fmt == "blender":
     downscale = config.downscale or 1
     scene = blender.load_blender(config.path, downscale)
@@ -117,14 +168,23 @@ def load_scene(config: DataConfig) -> Tuple[Scene, DataConfig]:
     downscale = config.downscale or 8
     scene = llff.load_llff(config.path, downscale, config.llff_holdout)
   else:
-    raise UserError(f"--format {fmt}: unknown scene format (blender or llff)")
+    raise UserError(f"--format {fmt}: unknown scene format (blender, llff, transforms or "
+                    "colmap)")
   return scene, dataclasses.replace(config, format=fmt, downscale=downscale)
 
 
-def check_poses(poses: np.ndarray, source: str, names: List[str]) -> None:
-  """Rejects non-finite or singular camera rotations, naming the first bad view."""
+def check_poses(poses: np.ndarray, source: str, names: List[str],
+                orthonormal: bool = False) -> None:
+  """Rejects non-finite or singular camera rotations, naming the first bad view; with
+  `orthonormal`, also rotations that are not orthonormal to 1e-3 (captures' poses are
+  rigid; Blender's and LLFF's reference files are trusted as the reference code does)."""
   for pose, name in zip(poses, names):
     if not np.all(np.isfinite(pose)):
       raise UserError(f"{source}: camera of {name} has NaN or inf entries")
     if abs(np.linalg.det(pose[:3, :3])) < 1e-6:
       raise UserError(f"{source}: camera of {name} has a singular rotation matrix")
+    if orthonormal:
+      error = np.abs(pose[:3, :3].T @ pose[:3, :3] - np.eye(3)).max()
+      if error > 1e-3:
+        raise UserError(f"{source}: camera of {name} has a rotation that is not orthonormal "
+                        f"(|R^T R - I| = {error:.3g})")

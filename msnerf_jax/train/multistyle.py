@@ -146,21 +146,24 @@ def compile_train_step(config: MultistyleConfig, styles: np.ndarray, white_backg
       train_step, config=config, white_background=white_background), n_devices, constants)
 
 
-def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
+def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene, coeffs=None):
   """A random batch of pixels of the training views, with their colour in every style.
 
-  images: [N, H, W, M, 3] uint8. Returns {"rays" [B], "rgb" [B, M, 3] uint8, "random"},
-  plus "patches" (sample_patches) when config.style_weight > 0.
+  images: [N, H, W, M, 3] uint8; K, coeffs: as nerf's sample_batch. Returns {"rays" [B],
+  "rgb" [B, M, 3] uint8, "random"}, plus "patches" (sample_patches) when
+  config.style_weight > 0.
   """
   sampling = dataclasses.replace(config.nerf, batch_rays=config.batch_rays)
   batch = nerf_lib.sample_batch(key, images, c2w, K, sampling, False, scene.ndc,
-                                (scene.height, scene.width, scene.focal), scene.near, scene.far)
+                                (scene.height, scene.width, scene.focal), scene.near, scene.far,
+                                coeffs=coeffs)
   if config.style_weight > 0:
-    batch["patches"] = sample_patches(jax.random.fold_in(key, 1), images, c2w, K, config, scene)
+    batch["patches"] = sample_patches(jax.random.fold_in(key, 1), images, c2w, K, config, scene,
+                                      coeffs)
   return batch
 
 
-def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
+def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene, coeffs=None):
   """config.style_patches random S x S patches (S = config.style_patch) of random training
   views, whole, with their pixels in every style.
 
@@ -176,7 +179,8 @@ def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene):
   views, rows, cols = jnp.broadcast_arrays(views, rows, cols)  # [P, S, S] each
   batch = nerf_lib.pixel_batch(k_rand, images, c2w, K, views.reshape(-1), rows.reshape(-1),
                                cols.reshape(-1), config.nerf, scene.ndc,
-                               (scene.height, scene.width, scene.focal), scene.near, scene.far)
+                               (scene.height, scene.width, scene.focal), scene.near, scene.far,
+                               coeffs=coeffs)
   patches = jax.tree_util.tree_map(lambda x: x.reshape(count, s * s, *x.shape[1:]), batch)
   patches["rgb"] = batch["rgb"].reshape(count, s, s, *batch["rgb"].shape[1:])
   return patches
@@ -238,14 +242,15 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.
   images = jnp.asarray(np.moveaxis(stylized.images[:, train_idx], 0, 3))
   c2w = jnp.asarray(scene.c2w[train_idx])
-  K = jnp.asarray(scene.K)
+  K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
   base_key = jax.random.PRNGKey(config.seed)
   encoder = vgg.load_vgg_params() if config.style_weight > 0 else None
   step_fn = compile_train_step(config, stylized.vectors, scene.white_background, n_devices,
                                encoder)
   return loop_lib.fit(
       init_state(config, nerf_run.params), step_fn,
-      lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene),
+      lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene,
+                                coeffs),
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
       keep_checkpoints=config.keep_checkpoints, n_devices=n_devices, desc="multistyle train",
       progress=progress, callback=callback)

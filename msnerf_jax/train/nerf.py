@@ -25,11 +25,12 @@ from msnerf_jax.train import state as state_lib
 
 @functools.partial(jax.jit, static_argnames=("config", "precrop", "ndc", "shape"))
 def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bool,
-                 shape, near: float, far: float, alphas=None):
+                 shape, near: float, far: float, alphas=None, coeffs=None):
   """A random global batch of training rays with their target colours and randomness.
 
   Args:
-    images: [N, H, W, 3] training images; c2w: [N, 3, 4]; K: [3, 3].
+    images: [N, H, W, 3] training images; c2w: [N, 3, 4]; K: [3, 3] shared or [N, 3, 3]
+      per view; coeffs: [N, 5] lens distortion per view (msnerf_jax.cameras) or None.
     precrop: draw pixels only from the central precrop_frac of each image.
     shape: (H, W, focal) static for the NDC warp.
     alphas: [N, H, W] uint8 opacity of the images (composited over white): given, every
@@ -50,11 +51,11 @@ def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bo
     rows = jax.random.randint(k_row, (b,), 0, h)
     cols = jax.random.randint(k_col, (b,), 0, w)
   return pixel_batch(k_rand, images, c2w, K, idx, rows, cols, config, ndc, shape, near, far,
-                     alphas)
+                     alphas, coeffs)
 
 
 def pixel_batch(key, images, c2w, K, idx, rows, cols, config: NerfConfig, ndc: bool, shape,
-                near: float, far: float, alphas=None):
+                near: float, far: float, alphas=None, coeffs=None):
   """Chosen training pixels as a batch: idx, rows, cols [B] (view, row, column of each).
 
   Returns {"rays": ray_bundle [B], "rgb": images[idx, rows, cols], "random":
@@ -63,7 +64,8 @@ def pixel_batch(key, images, c2w, K, idx, rows, cols, config: NerfConfig, ndc: b
   from `key` (a stream of their own, so the other draws stay as without them), and "rgb" is
   the photo composited over them instead: c a + bg (1 - a) = image + (1 - a) (bg - 1).
   """
-  origins, directions = rays_lib.pixel_rays(K, c2w[idx], rows, cols)
+  origins, directions = rays_lib.pixel_rays(K[idx] if K.ndim == 3 else K, c2w[idx], rows, cols,
+                                            None if coeffs is None else coeffs[idx])
   rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, shape[0], shape[1], shape[2])
   batch = {"rays": rays, "rgb": images[idx, rows, cols],
            "random": render_lib.draw_randomness(key, idx.shape[0], config)}
@@ -165,14 +167,14 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   images = jnp.asarray(scene.images[train_idx])
   alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
   c2w = jnp.asarray(scene.c2w[train_idx])
-  K = jnp.asarray(scene.K)
+  K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
   base_key = jax.random.PRNGKey(config.seed)
   shape = (scene.height, scene.width, scene.focal)
 
   def batch_fn(step):  # per-step key: resuming replays the same batches.
     return sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config,
                         step < config.precrop_steps, scene.ndc, shape, scene.near, scene.far,
-                        alphas)
+                        alphas, coeffs)
 
   return loop_lib.fit(init_state(config), compile_train_step(config, scene.white_background,
                                                              n_devices),

@@ -1,0 +1,124 @@
+"""nerfstudio / instant-ngp `transforms.json`: one file for every frame of a capture.
+
+Both flavours store camera-to-world matrices in OpenGL axes and intrinsics in COLMAP's
+pixel convention (pixel centres at +0.5): `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` and OpenCV
+distortion `k1`, `k2`, `k3`, `p1`, `p2`, given once for all frames or per frame (a frame's
+keys override the file's). instant-ngp files may give only `camera_angle_x` (and
+`camera_angle_y`). `camera_model` is PINHOLE or OPENCV; without it, as in nerfstudio, the
+coefficients present are used (OPENCV). Fisheye models are refused.
+"""
+
+import os
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+
+from msnerf_jax.data.images import IMAGE_EXTENSIONS, read_json
+from msnerf_jax.errors import UserError
+
+FILE = "transforms.json"
+CAMERA_MODELS = ("PINHOLE", "OPENCV")
+INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y",
+                  "k1", "k2", "k3", "k4", "p1", "p2", "camera_model", "is_fisheye")
+
+
+def _number(value: Any, source: str, key: str) -> float:
+  if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+    raise UserError(f"{source}: {key} must be a finite number, got {value!r}")
+  return float(value)
+
+
+def frame_camera(meta: Dict[str, Any], frame: Dict[str, Any], source: str,
+                 size: Optional[tuple] = None) -> Dict[str, Any]:
+  """The camera of one frame: {"fx", "fy", "cx", "cy", "w", "h", "coeffs" [5]} (COLMAP pixel
+  convention), the frame's keys over the file's. `size` (w, h) of the image is used when
+  the file gives none."""
+  merged = {k: meta[k] for k in INTRINSIC_KEYS if k in meta}
+  merged.update({k: frame[k] for k in INTRINSIC_KEYS if k in frame})
+  if "w" in merged and "h" in merged:
+    w, h = _number(merged["w"], source, "w"), _number(merged["h"], source, "h")
+  elif size is not None:
+    w, h = float(size[0]), float(size[1])
+  else:
+    raise UserError(f"{source}: no image size (w and h)")
+  if w <= 0 or h <= 0:
+    raise UserError(f"{source}: image size {w:g}x{h:g} must be positive")
+  if "fl_x" in merged:
+    fx = _number(merged["fl_x"], source, "fl_x")
+  elif "camera_angle_x" in merged:
+    angle = _number(merged["camera_angle_x"], source, "camera_angle_x")
+    if not 0 < angle < np.pi:
+      raise UserError(f"{source}: camera_angle_x {angle!r} must be in (0, pi) radians")
+    fx = 0.5 * w / np.tan(0.5 * angle)
+  else:
+    raise UserError(f"{source}: no focal length (fl_x or camera_angle_x)")
+  if "fl_y" in merged:
+    fy = _number(merged["fl_y"], source, "fl_y")
+  elif "camera_angle_y" in merged and "fl_x" not in merged:
+    angle = _number(merged["camera_angle_y"], source, "camera_angle_y")
+    if not 0 < angle < np.pi:
+      raise UserError(f"{source}: camera_angle_y {angle!r} must be in (0, pi) radians")
+    fy = 0.5 * h / np.tan(0.5 * angle)
+  else:
+    fy = fx
+  if fx <= 0 or fy <= 0:
+    raise UserError(f"{source}: focal length {fx:g}, {fy:g} must be positive")
+  cx = _number(merged.get("cx", w / 2), source, "cx")
+  cy = _number(merged.get("cy", h / 2), source, "cy")
+  model = merged.get("camera_model", "OPENCV")
+  if model not in CAMERA_MODELS or merged.get("is_fisheye", False):
+    raise UserError(f"{source}: camera model {model if model not in CAMERA_MODELS else 'fisheye'}"
+                    f" is not supported (supported: {', '.join(CAMERA_MODELS)})")
+  coeffs = np.zeros(5)
+  if model == "OPENCV":
+    for n, key in enumerate(("k1", "k2", "p1", "p2", "k3")):
+      coeffs[n] = _number(merged.get(key, 0.0), source, key)
+    if _number(merged.get("k4", 0.0), source, "k4") != 0:
+      raise UserError(f"{source}: k4 {merged['k4']} (a fisheye or rational lens) is not "
+                      "supported (supported: k1, k2, k3, p1, p2)")
+  return {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "w": w, "h": h, "coeffs": coeffs}
+
+
+def image_file(folder: str, file_path: Any, source: str) -> str:
+  """The image a frame's file_path names (relative to the file's folder; `./` or not; an
+  extension added when it has none, as Blender's files omit it)."""
+  if not isinstance(file_path, str) or not file_path:
+    raise UserError(f"{source}: file_path must be a non-empty string")
+  path = os.path.normpath(os.path.join(folder, file_path))
+  if os.path.isfile(path):
+    return path
+  if not os.path.splitext(path)[1]:
+    for ext in IMAGE_EXTENSIONS:
+      if os.path.isfile(path + ext):
+        return path + ext
+  raise UserError(f"{path}: missing (named by {source})")
+
+
+def read_transforms(folder: str) -> Dict[str, Any]:
+  """The frames of folder/transforms.json: {"source", "meta", "frames": [{"path", "c2w" [3, 4]
+  float64, "frame" (its dict)}]} sorted by image path."""
+  source = os.path.join(folder, FILE)
+  try:
+    meta = read_json(source)
+  except FileNotFoundError:
+    raise UserError(f"{source}: missing") from None
+  if not isinstance(meta, dict):
+    raise UserError(f"{source}: expected a JSON object")
+  frames = meta.get("frames")
+  if not isinstance(frames, list) or not frames:
+    raise UserError(f"{source}: 'frames' must be a non-empty list")
+  out: List[Dict[str, Any]] = []
+  for i, frame in enumerate(frames):
+    where = f"{source}: frame {i}"
+    if not isinstance(frame, dict) or "file_path" not in frame or "transform_matrix" not in frame:
+      raise UserError(f"{where} needs 'file_path' and 'transform_matrix'")
+    try:
+      pose = np.asarray(frame["transform_matrix"], dtype=np.float64)
+    except (TypeError, ValueError):
+      raise UserError(f"{where}: transform_matrix is not a numeric matrix") from None
+    if pose.shape not in ((4, 4), (3, 4)):
+      raise UserError(f"{where}: transform_matrix has shape {pose.shape}, expected 4x4")
+    out.append({"path": image_file(folder, frame["file_path"], where), "c2w": pose[:3, :4],
+                "frame": frame, "where": where})
+  out.sort(key=lambda f: f["path"])
+  return {"source": source, "meta": meta, "frames": out}
