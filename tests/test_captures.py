@@ -496,3 +496,16 @@ def test_bad_camera_path_files(tmp_path, capsys, tiny_blender, edit, needles):
   run_error(capsys, ["nerf", "render", "--run", run, "--out", tmp_path / "fly",
                      "--camera-path", path], "path.json", *needles)
   assert not (tmp_path / "fly.mp4").exists()
+
+
+def test_nerfstudio_split_lists_are_used(tmp_path):
+  rng = np.random.default_rng(10)
+  frames = transforms_frames([f"images/{i}.png" for i in range(5)], orbit_poses(5))
+  folder = write_transforms(tmp_path, dict(fl_x=30.0, w=W, h=H,
+                                           train_filenames=[f"images/{i}.png" for i in (0, 1, 3)],
+                                           val_filenames=["./images/4.png", "images/2.png"]),
+                            frames)
+  write_images(os.path.join(folder, "images"), [f"{i}.png" for i in range(5)], rng)
+  scene, _ = load_scene(DataConfig(path=folder))
+  assert scene.splits["train"].tolist() == [0, 1, 3]
+  assert scene.splits["val"].tolist() == scene.splits["test"].tolist() == [2, 4]

@@ -9,7 +9,8 @@ import msnerf_jax
 
 PACKAGE = os.path.dirname(os.path.abspath(msnerf_jax.__file__))
 # data.scene.load_scene imports the format loaders, which use the Scene they return.
-ALLOWED_CYCLES = [{"msnerf_jax.data.scene", "msnerf_jax.data.blender", "msnerf_jax.data.llff"}]
+ALLOWED_CYCLES = [{"msnerf_jax.data.scene", "msnerf_jax.data.blender", "msnerf_jax.data.llff",
+                   "msnerf_jax.data.captures"}]
 
 
 def modules():

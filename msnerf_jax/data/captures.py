@@ -16,7 +16,9 @@ Every capture goes through the same steps:
          is 4; near/far from the camera distances (2 and 6 at distance 4, as Blender scenes
          have); an orbit at the cameras' mean elevation as render path.
      The layout is printed and recorded in run.json (DataConfig.layout);
-  4. views are sorted by image name and every `llff_holdout`-th held out for val/test.
+  4. views are sorted by image name; the file's split (nerfstudio's `train_filenames`,
+     `val_filenames`, `test_filenames`) is used, or every `llff_holdout`-th view is held out
+     for val/test.
 """
 
 import dataclasses
@@ -46,12 +48,14 @@ class Capture:
   """What a reader gives, per view n (sorted by image name): paths [N] (full-size images);
   c2w [N, 3, 4] float64 OpenGL camera-to-world; cameras [N] {"fx", "fy", "cx", "cy", "w",
   "h", "coeffs"} in COLMAP's pixel convention at full size; bounds [N, 2] near/far depths
-  or None; source: the file named in messages."""
+  or None; splits: the file's own split (nerfstudio's train/val/test_filenames) or None;
+  source: the file named in messages."""
   source: str
   paths: List[str]
   c2w: np.ndarray
   cameras: List[Dict[str, Any]]
   bounds: Optional[np.ndarray] = None
+  splits: Optional[Dict[str, np.ndarray]] = None
 
 
 # ----------------------------------------------------------------------------- readers
@@ -64,8 +68,9 @@ def read_transforms_capture(path: str) -> Capture:
                                          if not {"w", "h"} <= set(data["meta"]) | set(f["frame"])
                                          else None)
              for f in data["frames"]]
-  return Capture(data["source"], [f["path"] for f in data["frames"]],
-                 np.stack([f["c2w"] for f in data["frames"]]), cameras)
+  paths = [f["path"] for f in data["frames"]]
+  return Capture(data["source"], paths, np.stack([f["c2w"] for f in data["frames"]]), cameras,
+                 splits=transforms_lib.named_splits(data["meta"], path, paths, data["source"]))
 
 
 def read_colmap_capture(path: str) -> Capture:
@@ -233,7 +238,7 @@ def load_capture(config: DataConfig, fmt: str) -> Tuple[Scene, DataConfig]:
   coeffs = np.stack([c["coeffs"] for c in capture.cameras]).astype(np.float32)
   scene = Scene(images=images, c2w=poses.astype(np.float32), K=Ks[0], near=near, far=far,
                 ndc=ndc, white_background=False,
-                splits=llff.holdout_splits(len(images), config.llff_holdout),
+                splits=capture.splits or llff.holdout_splits(len(images), config.llff_holdout),
                 render_poses=path.astype(np.float32), format=fmt, image_paths=tuple(files),
                 Ks=None if np.all(Ks == Ks[0]) else Ks,
                 distortion=None if cameras_lib.is_pinhole(coeffs) else coeffs,

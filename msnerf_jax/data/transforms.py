@@ -122,3 +122,32 @@ def read_transforms(folder: str) -> Dict[str, Any]:
                 "frame": frame, "where": where})
   out.sort(key=lambda f: f["path"])
   return {"source": source, "meta": meta, "frames": out}
+
+
+def named_splits(meta: Dict[str, Any], folder: str, paths: List[str], source: str
+                 ) -> Optional[Dict[str, np.ndarray]]:
+  """Splits [indices into `paths`] from nerfstudio's `train_filenames`, `val_filenames`,
+  `test_filenames` (paths relative to `folder`); None when the file has none. A missing val
+  split is the test split and vice versa."""
+  keys = [k for k in ("train", "val", "test") if f"{k}_filenames" in meta]
+  if not keys:
+    return None
+  index = {os.path.normpath(p): n for n, p in enumerate(paths)}
+  splits = {}
+  for key in keys:
+    names = meta[f"{key}_filenames"]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+      raise UserError(f"{source}: {key}_filenames must be a list of file paths")
+    ids = []
+    for name in names:
+      path = os.path.normpath(os.path.join(folder, name))
+      if path not in index:
+        raise UserError(f"{source}: {key}_filenames names {name}, which no frame has")
+      ids.append(index[path])
+    splits[key] = np.asarray(sorted(ids), np.int64)
+  if "train" not in splits or not len(splits["train"]):
+    raise UserError(f"{source}: has {', '.join(k + '_filenames' for k in keys)} but no "
+                    "train_filenames")
+  splits.setdefault("val", splits.get("test", np.array([], np.int64)))
+  splits.setdefault("test", splits["val"])
+  return splits
