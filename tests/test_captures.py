@@ -509,3 +509,15 @@ def test_nerfstudio_split_lists_are_used(tmp_path):
   scene, _ = load_scene(DataConfig(path=folder))
   assert scene.splits["train"].tolist() == [0, 1, 3]
   assert scene.splits["val"].tolist() == scene.splits["test"].tolist() == [2, 4]
+
+
+def test_partial_captures_get_a_path_along_their_arc():
+  azimuths = np.radians([100, 120, 150, 170, 200])
+  start, arc = captures.covered_arc(azimuths)
+  assert np.degrees(start) == pytest.approx(100) and np.degrees(arc) == pytest.approx(100)
+  assert captures.covered_arc(np.radians(np.arange(0, 360, 45)))[1] == pytest.approx(2 * np.pi)
+  poses = np.stack([look_at((3 * np.cos(a), 3 * np.sin(a), 1.0)) for a in azimuths])
+  path = captures.normalise(poses, None, "object")[4]
+  seen = np.degrees(np.arctan2(path[:, 1, 3], path[:, 0, 3]))
+  centre = np.degrees(np.arctan2(np.sin(azimuths).mean(), np.cos(azimuths).mean()))
+  assert np.abs((seen - centre + 180) % 360 - 180).max() < 60  # within the 100-degree arc

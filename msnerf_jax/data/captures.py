@@ -14,7 +14,8 @@ Every capture goes through the same steps:
        object (cameras around something): centred on the point closest to every optical
          axis, rotated so the cameras' mean up is +z, scaled so the median camera distance
          is 4; near/far from the camera distances (2 and 6 at distance 4, as Blender scenes
-         have); an orbit at the cameras' mean elevation as render path.
+         have); as render path an orbit at the cameras' mean elevation, or, when the
+         cameras' azimuths leave a gap wider than 60 degrees, the arc they cover and back.
      The layout is printed and recorded in run.json (DataConfig.layout);
   4. views are sorted by image name; the file's split (nerfstudio's `train_filenames`,
      `val_filenames`, `test_filenames`) is used, or every `llff_holdout`-th view is held out
@@ -32,7 +33,6 @@ from msnerf_jax.config import DataConfig
 from msnerf_jax.data import colmap, llff
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import transforms as transforms_lib
-from msnerf_jax.data.blender import pose_spherical
 from msnerf_jax.data.scene import Scene, check_poses
 from msnerf_jax.errors import UserError
 from msnerf_jax.progress import progress_bar
@@ -40,7 +40,9 @@ from msnerf_jax.progress import progress_bar
 LAYOUTS = ("forward-facing", "object")
 FORWARD_FACING_DEGREES = 40.0
 OBJECT_DISTANCE = 4.0  # median camera distance of object captures (Blender's radius)
-MAX_AUTO_SIDE = 400  # --downscale 0: the smallest power of two bringing the longer side here
+MAX_AUTO_SIDE = 400
+PATH_FRAMES = 40
+ORBIT_GAP_DEGREES = 60.0  # a wider gap between cameras' azimuths: the path covers the arc  # --downscale 0: the smallest power of two bringing the longer side here
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,12 +206,38 @@ def normalise(c2w: np.ndarray, bounds: Optional[np.ndarray], layout: str):
   poses[:, :3, 3] *= scale
   distance = distance * scale
   near, far = float(distance.min() / 2), float(distance.max() * 1.5)
-  elevation = np.degrees(np.arcsin(np.clip(poses[:, 2, 3] / distance, -1, 1))).mean()
-  path = np.stack([pose_spherical(a, -elevation, OBJECT_DISTANCE)[:3, :4]
-                   for a in np.linspace(-180, 180, 41)[:-1]])
+  elevation = np.arcsin(np.clip(poses[:, 2, 3] / distance, -1, 1)).mean()
+  start, arc = covered_arc(np.arctan2(poses[:, 1, 3], poses[:, 0, 3]))
+  if arc >= 2 * np.pi:  # the cameras surround it: a full orbit
+    azimuths = start + np.linspace(0, 2 * np.pi, PATH_FRAMES + 1)[:-1]
+  else:  # a partial arc: along what the cameras saw, and back
+    half = np.linspace(0, arc, PATH_FRAMES // 2 + 1)
+    azimuths = start + np.concatenate([half, half[-2:0:-1]])
+  path = np.stack([orbit_camera(a, elevation, OBJECT_DISTANCE) for a in azimuths])
   return (poses, near, far, False, path,
-          f"object: centred on the cameras' focus, bounds {near:.2f}-{far:.2f}, orbit at "
-          f"{elevation:.0f} degrees")
+          f"object: centred on the cameras' focus, bounds {near:.2f}-{far:.2f}, "
+          + ("orbit" if arc >= 2 * np.pi else f"{np.degrees(arc):.0f}-degree arc")
+          + f" at {np.degrees(elevation):.0f} degrees elevation")
+
+
+def covered_arc(azimuths: np.ndarray) -> Tuple[float, float]:
+  """(start, length) in radians of the arc of azimuths [N] the cameras cover: the circle
+  minus its largest gap; length 2 pi when no gap is wider than ORBIT_GAP_DEGREES."""
+  a = np.sort(np.mod(azimuths, 2 * np.pi))
+  gaps = np.diff(np.concatenate([a, [a[0] + 2 * np.pi]]))
+  k = int(np.argmax(gaps))
+  if gaps[k] <= np.radians(ORBIT_GAP_DEGREES):
+    return float(a[0]), 2 * np.pi
+  start = a[(k + 1) % len(a)]
+  return float(start), float(2 * np.pi - gaps[k])
+
+
+def orbit_camera(azimuth: float, elevation: float, radius: float) -> np.ndarray:
+  """OpenGL camera-to-world [3, 4] on a sphere around the origin (z up), looking at it."""
+  back = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                   np.sin(elevation)])
+  right = _unit(np.cross([0.0, 0.0, 1.0], back))
+  return np.stack([right, np.cross(back, right), back, radius * back], 1)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
