@@ -116,6 +116,12 @@ def _fsync_folder(folder: str) -> None:
     os.close(fd)
 
 
+def _umask() -> int:
+  mask = os.umask(0o022)
+  os.umask(mask)
+  return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str, needed: Optional[int] = None) -> Iterator[str]:
   """Yields a temporary path beside `path` for a writer that needs a file name (a video
@@ -129,6 +135,7 @@ def atomic_path(path: str, needed: Optional[int] = None) -> Iterator[str]:
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=TEMP_PREFIX,
                                suffix=os.path.splitext(path)[1])
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp's 0600 -> what open() would have made
   except OSError as e:
     raise (disk_error(path, e, needed) or e) from None
   try:

@@ -340,3 +340,16 @@ def test_sigterm_saves_a_checkpoint_at_the_current_step_and_resume_starts_there(
                    env)
   assert resumed.returncode == 0, resumed.stderr[-3000:]
   assert f"resumed from {step}" in resumed.stdout
+
+
+def test_atomic_writes_get_the_permissions_open_would_give(tmp_path):
+  mask = os.umask(0o027)
+  try:
+    files.atomic_write_bytes(str(tmp_path / "a.json"), b"{}")
+    with files.atomic_path(str(tmp_path / "b.mp4")) as tmp:
+      with open(tmp, "wb") as f:
+        f.write(b"x")
+  finally:
+    os.umask(mask)
+  for name in ("a.json", "b.mp4"):
+    assert os.stat(tmp_path / name).st_mode & 0o777 == 0o640  # not mkstemp's 0600
