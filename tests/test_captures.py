@@ -17,7 +17,6 @@ from msnerf_jax import rays as rays_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data import camera_path, captures, colmap
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
 
 from conftest import data_path
 from test_bad_input import run_error
