@@ -151,9 +151,7 @@ def scene_of(run: Run):
   """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
   style of a stylized dataset (run.json's "style"), that style's views are its images."""
   source = os.path.join(run.run_dir, RUN_FILE)
-  if "data" not in run.record:
-    raise UserError(f"{source}: a {run.kind!r} run has no scene")
-  scene, data = load_scene(config_lib.from_dict(config_lib.DataConfig, run.record["data"], source))
+  scene, data = load_scene(_data_config(run.record, source))
   style = run.record.get("style")
   if style is not None:
     if not isinstance(style, dict) or not {"stylized", "name"} <= set(style):
@@ -162,15 +160,17 @@ def scene_of(run: Run):
   return scene, data
 
 
+def _data_config(record: Dict[str, Any], source: str) -> config_lib.DataConfig:
+  """The DataConfig of a run.json record read by read_run_file (`source` names it)."""
+  if "data" not in record:
+    raise UserError(f"{source}: a {record['kind']!r} run has no scene")
+  return config_lib.from_dict(config_lib.DataConfig, record["data"], source)
+
+
 def run_scene(run_dir: str):
   """The scene (its cameras and normalised world) a run folder was trained on, without
   loading its checkpoint."""
-  record = read_run_file(run_dir)
-  source = os.path.join(run_dir, RUN_FILE)
-  if "data" not in record:
-    raise UserError(f"{source}: a {record.get('kind')!r} run has no scene")
-  values = drop_legacy_data_keys(dict(record["data"]), source)
-  return load_scene(config_lib.from_dict(config_lib.DataConfig, values, source))[0]
+  return load_scene(_data_config(read_run_file(run_dir), os.path.join(run_dir, RUN_FILE)))[0]
 
 
 def load_run_and_scene(run_dir: str, kind: str):

@@ -20,21 +20,26 @@ def add_camera_path_arguments(parser) -> None:
                       help="frames per second (default: the camera path's, else 24)")
 
 
+def check_path_options(frames: int, fps) -> None:
+  """UserError unless --frames is >= 0 and --fps (when given) positive."""
+  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  if frames < 0:
+    raise UserError(f"--frames {frames}: must be >= 0")
+  if fps is not None and not fps > 0:
+    raise UserError(f"--fps {fps}: must be positive")
+
+
 def render_cameras(scene, args):
   """(cameras, fps, size text) the render verbs draw: the --camera-path file's cameras or the
   scene's path, resampled to --frames."""
-  import numpy as np  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
-  if args.frames < 0:
-    raise UserError(f"--frames {args.frames}: must be >= 0")
-  if args.fps is not None and not args.fps > 0:
-    raise UserError(f"--fps {args.fps}: must be positive")
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.camera_path import read_camera_path
+  from msnerf_jax.data.scene import spaced_indices
+  check_path_options(args.frames, args.fps)
   if args.camera_path is None:
     return scene.path_poses(args.frames), args.fps or 24, f"{scene.width}x{scene.height}"
-  from msnerf_jax.data.camera_path import read_camera_path  # pylint: disable=g-import-not-at-top
   cameras, fps = read_camera_path(args.camera_path)
-  if args.frames > 0:
-    cameras = [cameras[i] for i in np.linspace(0, len(cameras) - 1, args.frames).round().astype(int)]
+  cameras = [cameras[i] for i in spaced_indices(len(cameras), args.frames)]
   return cameras, args.fps or fps, f"{cameras[0].width}x{cameras[0].height}"
 
 

@@ -8,8 +8,9 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (add_camera_path_arguments, load_run_and_scene, output_stem,
-                                   print_summary, print_training_summary, render_cameras)
+from msnerf_jax.cli.common import (add_camera_path_arguments, check_path_options,
+                                   load_run_and_scene, output_stem, print_summary,
+                                   print_training_summary, render_cameras)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
 from msnerf_jax.errors import UserError
@@ -214,10 +215,7 @@ def cmd_camera_path(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.camera_path import write_camera_path
   from msnerf_jax.runs import run_scene
-  if args.frames < 0:
-    raise UserError(f"--frames {args.frames}: must be >= 0")
-  if not args.fps > 0:
-    raise UserError(f"--fps {args.fps}: must be positive")
+  check_path_options(args.frames, args.fps)
   scene = run_scene(args.run)
   poses = scene.path_poses(args.frames)
   write_camera_path(args.out, poses, scene.K, scene.height, scene.width, args.fps)

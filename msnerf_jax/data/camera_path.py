@@ -18,16 +18,9 @@ from typing import Any, Dict, List, Sequence, Tuple
 import numpy as np
 
 from msnerf_jax import cameras as cameras_lib
-from msnerf_jax.data.images import read_json
+from msnerf_jax.data.images import json_number, read_json
 from msnerf_jax.errors import UserError
 from msnerf_jax.files import atomic_write_bytes
-
-
-def _positive(value: Any, source: str, key: str) -> float:
-  if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
-      or value <= 0):
-    raise UserError(f"{source}: {key} must be a positive number, got {value!r}")
-  return float(value)
 
 
 def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
@@ -49,9 +42,9 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
                     "(perspective only)")
   if not meta["camera_path"]:
     raise UserError(f"{path}: 'camera_path' is empty")
-  width = int(_positive(meta.get("render_width"), path, "render_width"))
-  height = int(_positive(meta.get("render_height"), path, "render_height"))
-  fps = _positive(meta.get("fps", 24), path, "fps")
+  width = int(json_number(meta.get("render_width"), path, "render_width", positive=True))
+  height = int(json_number(meta.get("render_height"), path, "render_height", positive=True))
+  fps = json_number(meta.get("fps", 24), path, "fps", positive=True)
   cameras = []
   for i, frame in enumerate(meta["camera_path"]):
     where = f"{path}: camera_path[{i}]"
@@ -66,7 +59,7 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
     c2w = matrix.reshape(4, 4)[:3, :4]
     if abs(np.linalg.det(c2w[:, :3])) < 1e-6:
       raise UserError(f"{where}: camera_to_world has a singular rotation")
-    fov = _positive(frame["fov"], where, "fov")
+    fov = json_number(frame["fov"], where, "fov", positive=True)
     if fov >= 180:
       raise UserError(f"{where}: fov {fov} must be below 180 degrees")
     focal = 0.5 * height / np.tan(np.radians(fov) / 2)

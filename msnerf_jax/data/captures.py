@@ -40,9 +40,9 @@ from msnerf_jax.progress import progress_bar
 LAYOUTS = ("forward-facing", "object")
 FORWARD_FACING_DEGREES = 40.0
 OBJECT_DISTANCE = 4.0  # median camera distance of object captures (Blender's radius)
-MAX_AUTO_SIDE = 400
+MAX_AUTO_SIDE = 400  # --downscale 0: the smallest power of two bringing the longer side here
 PATH_FRAMES = 40
-ORBIT_GAP_DEGREES = 60.0  # a wider gap between cameras' azimuths: the path covers the arc  # --downscale 0: the smallest power of two bringing the longer side here
+ORBIT_GAP_DEGREES = 60.0  # a wider gap between cameras' azimuths: the path covers the arc
 
 
 @dataclasses.dataclass(frozen=True)
@@ -236,8 +236,7 @@ def orbit_camera(azimuth: float, elevation: float, radius: float) -> np.ndarray:
   """OpenGL camera-to-world [3, 4] on a sphere around the origin (z up), looking at it."""
   back = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
                    np.sin(elevation)])
-  right = _unit(np.cross([0.0, 0.0, 1.0], back))
-  return np.stack([right, np.cross(back, right), back, radius * back], 1)
+  return llff.view_matrix(back, np.array([0.0, 0.0, 1.0]), radius * back)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -192,6 +192,16 @@ def read_json(path: str, hint: str = "") -> Any:
     raise UserError(f"{path}: malformed JSON ({e}){hint}") from None
 
 
+def json_number(value: Any, source: str, key: str, positive: bool = False) -> float:
+  """A JSON field's value as a float; UserError naming `source` and `key` unless it is a
+  finite number (not a bool), and with `positive`, above 0."""
+  if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
+      or (positive and value <= 0)):
+    raise UserError(f"{source}: {key} must be a {'positive' if positive else 'finite'} "
+                    f"number, got {value!r}")
+  return float(value)
+
+
 def read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
   """np.load without pickles, as float32; UserError naming the file unless it holds a finite
   array of `shape` (None = any size along that axis)."""

@@ -60,10 +60,7 @@ class Scene:
 
   def path_poses(self, frames: int = 0) -> np.ndarray:
     """The render path resampled to `frames` evenly spaced cameras [frames, 3, 4] (0 = all)."""
-    poses = self.render_poses
-    if frames > 0:
-      poses = poses[np.linspace(0, len(poses) - 1, frames).round().astype(int)]
-    return poses
+    return self.render_poses[spaced_indices(len(self.render_poses), frames)]
 
   @property
   def intrinsics(self) -> np.ndarray:
@@ -105,6 +102,13 @@ class Scene:
     """ray_bundle with this scene's bounds and NDC setting."""
     return rays_lib.ray_bundle(origins, directions, self.near, self.far, self.ndc,
                                self.height, self.width, self.focal)
+
+
+def spaced_indices(count: int, frames: int) -> np.ndarray:
+  """`frames` evenly spaced indices into `count` items, first and last included (0 = all)."""
+  if frames <= 0:
+    return np.arange(count)
+  return np.linspace(0, count - 1, frames).round().astype(int)
 
 
 # DataConfig keys that run.json files and stylized manifests of earlier versions may hold,

@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from msnerf_jax.data.images import IMAGE_EXTENSIONS, read_json
+from msnerf_jax.data.images import IMAGE_EXTENSIONS, json_number, read_json
 from msnerf_jax.errors import UserError
 
 FILE = "transforms.json"
@@ -22,10 +22,12 @@ INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camer
                   "k1", "k2", "k3", "k4", "p1", "p2", "camera_model", "is_fisheye")
 
 
-def _number(value: Any, source: str, key: str) -> float:
-  if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-    raise UserError(f"{source}: {key} must be a finite number, got {value!r}")
-  return float(value)
+def _focal_from_angle(merged: Dict[str, Any], key: str, side: float, source: str) -> float:
+  """The focal length (pixels) of a field of view `key` (radians) across `side` pixels."""
+  angle = json_number(merged[key], source, key)
+  if not 0 < angle < np.pi:
+    raise UserError(f"{source}: {key} {angle!r} must be in (0, pi) radians")
+  return 0.5 * side / np.tan(0.5 * angle)
 
 
 def frame_camera(meta: Dict[str, Any], frame: Dict[str, Any], source: str,
@@ -36,7 +38,7 @@ def frame_camera(meta: Dict[str, Any], frame: Dict[str, Any], source: str,
   merged = {k: meta[k] for k in INTRINSIC_KEYS if k in meta}
   merged.update({k: frame[k] for k in INTRINSIC_KEYS if k in frame})
   if "w" in merged and "h" in merged:
-    w, h = _number(merged["w"], source, "w"), _number(merged["h"], source, "h")
+    w, h = json_number(merged["w"], source, "w"), json_number(merged["h"], source, "h")
   elif size is not None:
     w, h = float(size[0]), float(size[1])
   else:
@@ -44,27 +46,21 @@ def frame_camera(meta: Dict[str, Any], frame: Dict[str, Any], source: str,
   if w <= 0 or h <= 0:
     raise UserError(f"{source}: image size {w:g}x{h:g} must be positive")
   if "fl_x" in merged:
-    fx = _number(merged["fl_x"], source, "fl_x")
+    fx = json_number(merged["fl_x"], source, "fl_x")
   elif "camera_angle_x" in merged:
-    angle = _number(merged["camera_angle_x"], source, "camera_angle_x")
-    if not 0 < angle < np.pi:
-      raise UserError(f"{source}: camera_angle_x {angle!r} must be in (0, pi) radians")
-    fx = 0.5 * w / np.tan(0.5 * angle)
+    fx = _focal_from_angle(merged, "camera_angle_x", w, source)
   else:
     raise UserError(f"{source}: no focal length (fl_x or camera_angle_x)")
   if "fl_y" in merged:
-    fy = _number(merged["fl_y"], source, "fl_y")
+    fy = json_number(merged["fl_y"], source, "fl_y")
   elif "camera_angle_y" in merged and "fl_x" not in merged:
-    angle = _number(merged["camera_angle_y"], source, "camera_angle_y")
-    if not 0 < angle < np.pi:
-      raise UserError(f"{source}: camera_angle_y {angle!r} must be in (0, pi) radians")
-    fy = 0.5 * h / np.tan(0.5 * angle)
+    fy = _focal_from_angle(merged, "camera_angle_y", h, source)
   else:
     fy = fx
   if fx <= 0 or fy <= 0:
     raise UserError(f"{source}: focal length {fx:g}, {fy:g} must be positive")
-  cx = _number(merged.get("cx", w / 2), source, "cx")
-  cy = _number(merged.get("cy", h / 2), source, "cy")
+  cx = json_number(merged.get("cx", w / 2), source, "cx")
+  cy = json_number(merged.get("cy", h / 2), source, "cy")
   model = merged.get("camera_model", "OPENCV")
   if model not in CAMERA_MODELS or merged.get("is_fisheye", False):
     raise UserError(f"{source}: camera model {model if model not in CAMERA_MODELS else 'fisheye'}"
@@ -72,8 +68,8 @@ def frame_camera(meta: Dict[str, Any], frame: Dict[str, Any], source: str,
   coeffs = np.zeros(5)
   if model == "OPENCV":
     for n, key in enumerate(("k1", "k2", "p1", "p2", "k3")):
-      coeffs[n] = _number(merged.get(key, 0.0), source, key)
-    if _number(merged.get("k4", 0.0), source, "k4") != 0:
+      coeffs[n] = json_number(merged.get(key, 0.0), source, key)
+    if json_number(merged.get("k4", 0.0), source, "k4") != 0:
       raise UserError(f"{source}: k4 {merged['k4']} (a fisheye or rational lens) is not "
                       "supported (supported: k1, k2, k3, p1, p2)")
   return {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "w": w, "h": h, "coeffs": coeffs}
