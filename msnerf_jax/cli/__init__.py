@@ -19,6 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
   from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.cli import pipeline as pipeline_cli
+  from msnerf_jax.cli import view as view_cli
   parser = argparse.ArgumentParser(
       prog="msnerf", formatter_class=_Formatter,
       description="Multi-style NeRF with AdaIN: learn a scene once, render it in any style.")
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
   multistyle_cli.register(commands, _Formatter)
   pipeline_cli.register(commands, _Formatter)
   demo_cli.register(commands, _Formatter)
+  view_cli.register(commands, _Formatter)
   return parser
 
 

@@ -70,11 +70,12 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
 
 def camera_path_dict(poses: Sequence[np.ndarray], K: np.ndarray, height: int, width: int,
                      fps: float = 24.0) -> Dict[str, Any]:
-  """A camera_path.json (dict) of cameras c2w [P, 3, 4] that share the intrinsics K [3, 3]
-  of a height x width image (the vertical field of view is what the format keeps)."""
-  fov = float(np.degrees(2 * np.arctan(0.5 * height / float(K[1, 1]))))
+  """A camera_path.json (dict) of cameras c2w [P, 3, 4] with intrinsics K [3, 3] (shared) or
+  [P, 3, 3] of a height x width image (the vertical field of view is what the format keeps)."""
+  Ks = np.broadcast_to(np.asarray(K), (len(poses), 3, 3))
   path = []
-  for c2w in poses:
+  for c2w, K in zip(poses, Ks):
+    fov = float(np.degrees(2 * np.arctan(0.5 * height / float(K[1, 1]))))
     matrix = np.eye(4)
     matrix[:3, :4] = c2w
     path.append({"camera_to_world": [float(x) for x in matrix.ravel()], "fov": fov,

@@ -1,5 +1,6 @@
 """Robust image reading and writing: any common format, mode and bit depth in, float32 RGB out."""
 
+import io
 import numbers
 import os
 import warnings
@@ -69,11 +70,27 @@ def read_image(path: str,
     raise UserError(f"{path}: is a folder, expected an image file")
   if os.path.getsize(path) == 0:
     raise UserError(f"{path}: empty file")
+  return _decode(path, path, background, max_side, keep_alpha, reduce)
+
+
+def decode_image(data: bytes, name: str, background: Optional[float] = 1.0,
+                 max_side: Optional[int] = None) -> np.ndarray:
+  """An image file's bytes (e.g. an upload) as float32 RGB [h, w, 3] in [0, 1], as
+  read_image reads files; UserError naming `name` when they are empty or not an image."""
+  if not data:
+    raise UserError(f"{name}: empty file")
+  return _decode(io.BytesIO(data), name, background, max_side, False, 1)
+
+
+def _decode(source, path: str, background: Optional[float], max_side: Optional[int],
+            keep_alpha: bool, reduce: int) -> np.ndarray:
+  """read_image's decoding of `source` (a file name or a binary file object), named `path`
+  in errors."""
   try:
     with warnings.catch_warnings():
       warnings.simplefilter("error", Image.DecompressionBombWarning)
       Image.MAX_IMAGE_PIXELS = MAX_DECODE_PIXELS
-      with Image.open(path) as image:
+      with Image.open(source) as image:
         if max_side is not None and max(image.size) > max_side:
           image.draft("RGB", (max_side, max_side))  # JPEG: decode at 1/2, 1/4, 1/8 scale.
         image.load()
@@ -92,6 +109,8 @@ def read_image(path: str,
     raise
   except (Image.DecompressionBombError, Image.DecompressionBombWarning):
     raise UserError(f"{path}: image too large to decode (over {MAX_DECODE_PIXELS} pixels)") from None
+  except Image.UnidentifiedImageError:
+    raise UserError(f"{path}: not an image (no image format recognised)") from None
   except (OSError, SyntaxError, ValueError) as e:
     raise UserError(f"{path}: unreadable or truncated image ({e})") from None
   except Exception as e:  # Pillow raises many types for corrupt data.

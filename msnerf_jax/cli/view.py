@@ -1,0 +1,47 @@
+"""`msnerf view`: a run in the browser (msnerf_jax.viewer)."""
+
+from msnerf_jax.errors import UserError
+
+
+def register(commands, formatter):
+  p = commands.add_parser(
+      "view", formatter_class=formatter,
+      help="look around a run in the browser: orbit, styles, blends, strength, uploads",
+      description="Serves a local web page (viser) that renders a NeRF or multi-style run from "
+                  "the browser's camera: a low-resolution frame while the camera moves, the "
+                  "full one when it stops. Style menus, a blend slider, a strength slider and "
+                  "an upload field for any style image; buttons to snap to the nearest "
+                  "training view, save the view as PNG and add camera keyframes (a "
+                  "camera_path.json for `msnerf render --camera-path`). Ctrl-C stops it. "
+                  "Needs the viewer extra: pip install \"msnerf-jax[viewer]\".",
+      epilog="example: msnerf view --run runs/lego_pipeline/multistyle  (then open the printed "
+             "address)")
+  p.add_argument("--run", required=True, help="a NeRF or multi-style run folder")
+  p.add_argument("--port", type=int, default=8080, help="port to serve on (0: any free port)")
+  p.add_argument("--host", default="127.0.0.1",
+                 help="address to listen on: 127.0.0.1 (this machine only) unless you choose "
+                      "to share it, e.g. 0.0.0.0")
+  p.add_argument("--out", default=None,
+                 help="folder of saved views and keyframes (default RUN/viewer)")
+  p.set_defaults(func=cmd_view)
+
+
+def cmd_view(args):
+  if not 0 <= args.port <= 65535:
+    raise UserError(f"--port {args.port}: must be in 0..65535")
+  try:
+    from msnerf_jax.viewer import server  # pylint: disable=g-import-not-at-top
+  except ImportError as e:
+    raise UserError(f"the viewer needs viser ({e.name} is not installed): "
+                    "pip install \"msnerf-jax[viewer]\"") from None
+  print(f"msnerf view: loading {args.run}")
+  viewer = server.open_viewer(args.run, args.out, args.host, args.port)
+  where = ("this machine only" if server.is_loopback(args.host)
+           else "reachable from the network: anyone who can connect sees and uses it")
+  print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "
+        f"{viewer.out_dir}. Ctrl-C stops.")
+  try:
+    server.serve_forever(viewer)
+  except KeyboardInterrupt:
+    pass
+  print("msnerf view: stopped")

@@ -1,0 +1,179 @@
+"""Frames of a loaded run: what the viewer renders for one camera and one style, at one of
+two levels (a quick low-resolution frame while the camera moves, the full one when it stops).
+
+A frame is `render.render_image` of the camera's rays, cut into bands of one rendering chunk
+so that a full frame can be abandoned between bands when a newer request arrives. Every band
+is one jitted call of a fixed size per level, so a level compiles once (`warm_up`).
+"""
+
+import dataclasses
+import threading
+import time
+from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax import render as render_lib
+from msnerf_jax import styles as styles_lib
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.data.stylized import ORIGINAL, style_vector_of
+from msnerf_jax.errors import UserError
+from msnerf_jax.models.multistyle import MultistyleField
+from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.runs import Run, style_vectors
+from msnerf_jax.viewer import camera as camera_lib
+
+LEVELS = ("low", "full")
+LOW_LEVEL_DIVISOR = 16  # the low level has 1/16 of the pixels (a quarter of each side).
+MAX_UPLOAD_BYTES = 20 * 1024 * 1024
+UPLOAD_MAX_SIDE = 1024  # an uploaded style image is decoded at most this large.
+
+
+@dataclasses.dataclass(frozen=True)
+class StyleChoice:
+  """The style controls: style `a` blended towards `b` by t (0: a, 1: b), at `strength`
+  between the original scene (0) and that blend (1). Names are keys of the style table."""
+  a: str
+  b: str
+  t: float = 0.0
+  strength: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class View:
+  """A browser camera: viser pose (OpenCV wxyz [4], position [3]), vertical fov (radians) and
+  the viewport's aspect ratio (width / height)."""
+  wxyz: Tuple[float, ...]
+  position: Tuple[float, ...]
+  fov: float
+  aspect: float
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Request:
+  """One frame to draw: a view and a style vector [D] (None for a NeRF run)."""
+  view: View
+  style: Optional[np.ndarray]
+
+
+class Frames:
+  """Renders a loaded run's frames; one at a time (a lock), from any thread.
+
+  Attributes:
+    run, scene: the loaded run and its scene.
+    styles: name -> style vector [D] of the run's training styles (empty for a NeRF run).
+    pixels: {"low": n, "full": n} pixel budgets of the two levels.
+  """
+
+  def __init__(self, run: Run, scene: Scene):
+    self.run, self.scene = run, scene
+    if run.kind == "multistyle":
+      self.field, self.config = MultistyleField(run.config), run.config.nerf
+      self.styles: Dict[str, np.ndarray] = style_vectors(run)
+    elif run.kind == "nerf":
+      self.field, self.config = NerfField(run.config), run.config
+      self.styles = {}
+    else:
+      raise UserError(f"{run.run_dir}: a {run.kind!r} run has no scene to view")
+    self.params = jax.device_put(run.params)
+    full = scene.height * scene.width
+    self.pixels = {"low": max(1, full // LOW_LEVEL_DIVISOR), "full": full}
+    # Frame sizes round to the aspect ratio: a frame has at most pixels + 2 sqrt(pixels) + 1.
+    slack = lambda n: n + 2 * int(np.ceil(np.sqrt(n))) + 1
+    self.chunks = {"low": slack(self.pixels["low"]),
+                   "full": min(self.config.render_chunk, slack(full))}
+    self._lock = threading.Lock()
+    self._encoder = None
+
+  @property
+  def has_styles(self) -> bool:
+    return bool(self.styles)
+
+  def style_vector(self, choice: StyleChoice, table: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The style vector [D] of the controls, names looked up in `table`."""
+    vector = styles_lib.blend(table[choice.a], table[choice.b], choice.t)
+    if ORIGINAL in table and choice.strength < 1.0:
+      vector = styles_lib.blend(table[ORIGINAL], vector, choice.strength)
+    return vector
+
+  def upload_style(self, data: bytes, name: str) -> np.ndarray:
+    """The style vector [D] of an uploaded image file's bytes.
+
+    Raises:
+      UserError (the message for the page) when the file is too large, not an image, or
+      smaller than 16x16.
+    """
+    if len(data) > MAX_UPLOAD_BYTES:
+      raise UserError(f"{name}: {len(data) / 2**20:.1f} MB, more than the "
+                      f"{MAX_UPLOAD_BYTES // 2**20} MB a style image may have")
+    image = images_lib.decode_image(data, name, max_side=UPLOAD_MAX_SIDE)
+    if min(image.shape[:2]) < 16:
+      raise UserError(f"{name}: style image is {image.shape[1]}x{image.shape[0]}, need at "
+                      "least 16x16")
+    with self._lock:
+      if self._encoder is None:
+        from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+        self._encoder = vgg.load_vgg_params()
+      return style_vector_of(self._encoder, image)
+
+  def camera(self, view: View, level: str):
+    """The library camera (cameras.Camera) of a view at a level's pixel budget."""
+    height, width = camera_lib.frame_size(view.aspect, self.pixels[level])
+    return camera_lib.to_camera(view.wxyz, view.position, view.fov, height, width)
+
+  def render(self, request: Request, level: str,
+             cancelled: Callable[[], bool] = lambda: False) -> Optional[np.ndarray]:
+    """The frame of a request at a level: uint8 [H, W, 3], or None when `cancelled()` became
+    true between two bands."""
+    rays = self.scene.camera_rays(self.camera(request.view, level))
+    shape = rays["origins"].shape[:-1]
+    flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
+    styles = None if request.style is None else jnp.asarray(request.style, jnp.float32)[None]
+    chunk = self.chunks[level]
+    bands: List[np.ndarray] = []
+    with self._lock:
+      for start in range(0, flat["origins"].shape[0], chunk):
+        if cancelled():
+          return None
+        band = {k: v[start:start + chunk] for k, v in flat.items()}
+        out = render_lib.render_image(self.field, self.params, band, self.config,
+                                      self.scene.white_background, chunk, styles)
+        bands.append(out["rgb"] if styles is None else out["rgb"][0])
+    return images_lib.to_uint8(np.concatenate(bands).reshape(*shape, 3))
+
+  def start_request(self) -> Request:
+    """The first training view, in the first style (what a new page shows)."""
+    view = self.view_of(self.scene.c2w[self.first_view()], self.scene.width / self.scene.height)
+    return Request(view, self.style_vector(self.default_choice(), self.styles)
+                   if self.has_styles else None)
+
+  def first_view(self) -> int:
+    views = self.scene.splits.get("train", np.arange(len(self.scene.c2w)))
+    return int(views[0])
+
+  def default_choice(self) -> StyleChoice:
+    first = next(iter(self.styles))
+    return StyleChoice(first, first)
+
+  def view_of(self, c2w: np.ndarray, aspect: float) -> View:
+    """The View of an OpenGL c2w [3, 4] seen with the scene's render camera."""
+    wxyz, position = camera_lib.to_viser_pose(c2w)
+    return View(tuple(wxyz), tuple(position), self.fov, aspect)
+
+  @property
+  def fov(self) -> float:
+    """The render camera's vertical field of view (radians)."""
+    return camera_lib.vertical_fov(self.scene.K, self.scene.height)
+
+  def warm_up(self, report: Callable[[str], Any] = print) -> Dict[str, float]:
+    """Compiles both levels (one frame each); returns the seconds each took."""
+    seconds = {}
+    for level in LEVELS:
+      start = time.perf_counter()
+      self.render(self.start_request(), level)
+      seconds[level] = time.perf_counter() - start
+      report(f"  {level} frames compiled ({seconds[level]:.1f} s)")
+    return seconds
