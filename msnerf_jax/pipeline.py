@@ -350,4 +350,6 @@ def format_summary(summary: Dict[str, Any]) -> str:
     lines.append(f"  {r['stage']:<11} {what}")
     for path in r["outputs"]:
       lines.append(f"  {'':<11}   {path}")
+  lines.append(f"look around it in the browser: msnerf view --run "
+               f"{os.path.join(summary['out'], 'multistyle')}  (pip install \"msnerf-jax[viewer]\")")
   return "\n".join(lines) + "\n"

@@ -3,7 +3,11 @@ client that speaks viser's protocol (msnerf_jax.viewer.probe), on a tiny untrain
 
 import io
 import os
+import re
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -330,6 +334,21 @@ def test_bad_runs_and_ports_end_with_one_line(world, tmp_path, capsys):
   assert not os.path.exists(os.path.join(world["nerf"], "viewer"))
 
 
+def test_browser_page_shows_a_new_render_after_a_slider_moves(world, tmp_path):
+  """experiments/viewer_browser.py: headless Chromium through Playwright (skipped when
+  either is missing, as on CI)."""
+  script = os.path.join(os.path.dirname(os.path.dirname(__file__)), "experiments",
+                        "viewer_browser.py")
+  out = str(tmp_path / "screens.png")
+  done = subprocess.run([sys.executable, script, "--run", world["run"], "--out", out],
+                        capture_output=True, text=True, timeout=600,
+                        env=dict(os.environ, PYTHONPATH=os.path.dirname(script) + "/.."))
+  if done.returncode == 77:
+    pytest.skip(done.stdout.strip())
+  assert done.returncode == 0, done.stdout + done.stderr
+  assert os.path.exists(out)
+
+
 def test_nerf_run_is_viewed_without_style_controls(world):
   viewer = server_lib.open_viewer(world["nerf"], port=0, log=lambda _: None)
   probe = probe_lib.Probe(viewer.url)
@@ -347,3 +366,34 @@ def test_nerf_run_is_viewed_without_style_controls(world):
   finally:
     probe.close()
     viewer.stop()
+
+
+def test_cli_serves_on_loopback_and_ctrl_c_stops_cleanly(world, request, tmp_path):
+  from conftest import trainer_env  # pylint: disable=g-import-not-at-top
+  server = subprocess.Popen([sys.executable, "-m", "msnerf_jax", "view", "--run", world["run"],
+                             "--port", "0", "--out", str(tmp_path / "saved")],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=trainer_env(request, tmp_path / "cache"))
+  try:
+    lines = []
+    for line in server.stdout:
+      lines.append(line)
+      if "serving" in line:
+        break
+    url = re.search(r"at (http://127\.0\.0\.1:\d+) \(this machine only\)", lines[-1])
+    assert url, "".join(lines)
+    probe = probe_lib.Probe(url.group(1))
+    try:
+      view = frames_lib.View((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -4.0), 0.7, 1.0)
+      probe.camera(view.wxyz, view.position, view.fov, 200, 200)
+      assert probe.next_frame(0).ndim == 3
+      server.send_signal(signal.SIGINT)  # with the page still open
+      out, _ = server.communicate(timeout=30)
+      probe.wait_for(lambda: probe.closed, 10, "disconnect")
+    finally:
+      probe.close()
+    assert server.returncode == 0, out
+    assert "msnerf view: stopped" in out and "Traceback" not in out, out
+  finally:
+    if server.poll() is None:
+      server.kill()

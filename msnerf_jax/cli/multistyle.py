@@ -201,7 +201,8 @@ def cmd_train(args):
   summary = multistyle.train(config, args.nerf, stylized, args.out, n_devices=args.devices)
   print_training_summary("multi-style training done", summary, " (all styles)",
                          f"msnerf multistyle eval --run {args.out}; msnerf render --run "
-                         f"{args.out} --out {os.path.join(args.out, 'video')}")
+                         f"{args.out} --out {os.path.join(args.out, 'video')}; msnerf view "
+                         f"--run {args.out}")
 
 
 def cmd_eval(args):

@@ -60,7 +60,7 @@ class Request:
 
 
 class Frames:
-  """Renders a loaded run's frames; one at a time (a lock), from any thread.
+  """Renders a loaded run's frames, from any thread; one band at a time (a lock).
 
   Attributes:
     run, scene: the loaded run and its scene.
@@ -83,9 +83,12 @@ class Frames:
     self.pixels = {"low": max(1, full // LOW_LEVEL_DIVISOR), "full": full}
     # Frame sizes round to the aspect ratio: a frame has at most pixels + 2 sqrt(pixels) + 1.
     slack = lambda n: n + 2 * int(np.ceil(np.sqrt(n))) + 1
-    self.chunks = {"low": slack(self.pixels["low"]),
-                   "full": min(self.config.render_chunk, slack(full))}
-    self._lock = threading.Lock()
+    # One band for a low frame; a full frame in equal bands of at most render_chunk rays
+    # (little padding in the last band).
+    bands = -(-slack(full) // self.config.render_chunk)
+    self.chunks = {"low": slack(self.pixels["low"]), "full": -(-slack(full) // bands)}
+    # Re-entrant: between two bands the scheduler may draw other clients' low frames.
+    self._lock = threading.RLock()
     self._encoder = None
 
   @property

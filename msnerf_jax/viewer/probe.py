@@ -57,6 +57,7 @@ class Probe:
                        max_size=64 * 1024 * 1024, open_timeout=timeout)
     self._cond = threading.Condition()
     self.frames: List[np.ndarray] = []
+    self.frame_times: List[float] = []  # time.monotonic() of each frame
     self.components: Dict[str, Dict[str, Any]] = {}  # label -> latest creation message
     self.notifications: List[Dict[str, Any]] = []
     self.downloads: List[str] = []
@@ -84,6 +85,7 @@ class Probe:
         data = message["rgb_data"]
         data = data.tobytes() if isinstance(data, np.ndarray) else bytes(data)
         self.frames.append(np.asarray(Image.open(io.BytesIO(data)).convert("RGB")))
+        self.frame_times.append(time.monotonic())
       elif (kind.startswith("Gui") and isinstance(message.get("props"), dict)
             and "label" in message["props"]):
         self.components[message["props"]["label"]] = message

@@ -1,11 +1,11 @@
 """Progressive, latest-wins rendering for every connected client, on one worker thread.
 
 Each client keeps only its latest request. After a change the client gets a low-resolution
-frame as soon as the worker is free; once the request has not changed for `settle` seconds,
-the full frame. A full frame in progress is abandoned (between bands) when its client sends
-a newer request. Clients are served in turn, low frames before full ones, so one client
-moving its camera non-stop cannot starve the others. One frame renders at a time: on a CPU
-the renderer already uses every core.
+frame at its next turn; once the request has not changed for `settle` seconds, the full
+frame. A full frame in progress is abandoned (between bands) when its client sends a newer
+request. Low frames come first, clients in turn, and between two bands of a full frame the
+worker draws the low frames others wait for, so moving cameras stay responsive whatever
+the others do. One band renders at a time: on a CPU the renderer already uses every core.
 """
 
 import collections
@@ -38,6 +38,7 @@ class Scheduler:
     self._order: collections.deque = collections.deque()
     self._cond = threading.Condition()
     self._stopped = False
+    self._served_since_full = set()  # clients given a low frame since the last full one
     self.frames = collections.Counter()  # (client, level) -> frames delivered
     self._thread = threading.Thread(target=self._work, name="msnerf-render", daemon=True)
     self._thread.start()
@@ -59,6 +60,7 @@ class Scheduler:
         self._order.remove(client)
       for level in ("low", "full"):
         self.frames.pop((client, level), None)
+      self._served_since_full.discard(client)
       self._cond.notify_all()
 
   def stop(self, timeout: float = 10.0) -> None:
@@ -68,20 +70,30 @@ class Scheduler:
     self._thread.join(timeout)
 
   def _next(self) -> Optional[Tuple[Hashable, Any, int, str]]:
-    """The next job (client, request, version, level), waiting for one; None once stopped."""
+    """The next job (client, request, version, level), waiting for one; None once stopped.
+
+    Low frames, clients in turn; once every client waiting for one got one since the last
+    full frame, a full frame: for the client whose camera came to rest most recently (its
+    user is looking now) among those that have rested `settle` seconds.
+    """
     with self._cond:
       while not self._stopped:
-        now, wake = time.monotonic(), None
-        for level in ("low", "full"):
-          for client in self._order:
-            state = self._clients[client]
-            if level == "low" and state.low_done < state.version:
-              return self._take(client, state, level)
-            if level == "full" and state.full_done < state.version:
-              ready = state.changed_at + self._settle
-              if ready <= now:
-                return self._take(client, state, level)
+        now, wake, full, low = time.monotonic(), None, None, []
+        for client in self._order:
+          state = self._clients[client]
+          if state.low_done < state.version:
+            low.append(client)
+          elif state.full_done < state.version:
+            ready = state.changed_at + self._settle
+            if ready > now:
               wake = ready if wake is None else min(wake, ready)
+            elif full is None or state.changed_at > self._clients[full].changed_at:
+              full = client
+        if full is not None and all(c in self._served_since_full for c in low):
+          self._served_since_full.clear()
+          return self._take(full, self._clients[full], "full")
+        if low:
+          return self._take(low[0], self._clients[low[0]], "low")
         self._cond.wait(None if wake is None else max(0.0, wake - now))
       return None
 
@@ -90,6 +102,7 @@ class Scheduler:
     self._order.append(client)
     if level == "low":
       state.low_done = state.version
+      self._served_since_full.add(client)
     return client, state.request, state.version, level
 
   def _current(self, client: Hashable, version: int) -> bool:
@@ -101,28 +114,47 @@ class Scheduler:
       job = self._next()
       if job is None:
         return
-      client, request, version, level = job
-      # A low frame is quick and always shown; a full one is dropped when outdated.
-      cancelled = ((lambda: self._stopped or not self._current(client, version))
-                   if level == "full" else (lambda: self._stopped))
-      start = time.perf_counter()
-      failed = False
-      try:
-        frame = self._render(request, level, cancelled)
-      except Exception:  # pylint: disable=broad-except
-        traceback.print_exc()  # a bad frame must not end the viewer for every client.
-        frame, failed = None, True
-      seconds = time.perf_counter() - start
+      self._run(job)
+
+  def _run(self, job) -> None:
+    client, request, version, level = job
+    if level == "full":
+      def cancelled():  # called between the bands of a full frame
+        self._serve_low_frames()
+        return self._stopped or not self._current(client, version)
+    else:
+      cancelled = lambda: self._stopped  # a low frame is quick and always shown.
+    start = time.perf_counter()
+    failed = False
+    try:
+      frame = self._render(request, level, cancelled)
+    except Exception:  # pylint: disable=broad-except
+      traceback.print_exc()  # a bad frame must not end the viewer for every client.
+      frame, failed = None, True
+    seconds = time.perf_counter() - start
+    with self._cond:
+      state = self._clients.get(client)
+      if state is None or (frame is None and not failed):
+        return
+      if level == "full" and state.version == version:
+        state.full_done = version  # also after a failure: not retried in a loop.
+      if frame is None:
+        return
+      self.frames[(client, level)] += 1
+    try:
+      self._deliver(client, frame, level, seconds)
+    except Exception:  # pylint: disable=broad-except
+      traceback.print_exc()  # e.g. the client left while the frame was sent.
+
+  def _serve_low_frames(self) -> None:
+    """Between two bands of a full frame: the low frames clients wait for (each once), so
+    that moving cameras stay responsive while a full frame renders."""
+    with self._cond:
+      waiting = [c for c in self._order if self._clients[c].low_done < self._clients[c].version]
+    for client in waiting:
       with self._cond:
         state = self._clients.get(client)
-        if state is None or (frame is None and not failed):
+        if self._stopped or state is None or state.low_done >= state.version:
           continue
-        if level == "full" and state.version == version:
-          state.full_done = version  # also after a failure: not retried in a loop.
-        if frame is None:
-          continue
-        self.frames[(client, level)] += 1
-      try:
-        self._deliver(client, frame, level, seconds)
-      except Exception:  # pylint: disable=broad-except
-        traceback.print_exc()  # e.g. the client left while the frame was sent.
+        job = self._take(client, state, "low")
+      self._run(job)

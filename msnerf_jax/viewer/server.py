@@ -134,7 +134,9 @@ class ViewerServer:
     client.camera.on_update(moved)
     self._camera_moved(client.client_id, client.camera)
 
-  def _disconnect(self, client) -> None:
+  async def _disconnect(self, client) -> None:
+    # async: runs on viser's event loop, also while the server stops (its thread pool is
+    # shut down by then).
     self.scheduler.remove(client.client_id)
     with self._lock:
       self._clients.pop(client.client_id, None)
@@ -181,7 +183,9 @@ class ViewerServer:
       if frames.has_styles:
         names = list(frames.styles)
         state.gui["style"] = gui.add_dropdown("style", names, initial_value=names[0])
-        state.gui["blend_with"] = gui.add_dropdown("blend with", names, initial_value=names[0])
+        # The second style, so that the blend slider does something from the start.
+        state.gui["blend_with"] = gui.add_dropdown("blend with", names,
+                                                   initial_value=names[min(1, len(names) - 1)])
         state.gui["blend"] = gui.add_slider("blend", 0.0, 1.0, 0.01, 0.0,
                                             hint="0: the style, 1: the style blended with")
         state.gui["strength"] = gui.add_slider(
