@@ -43,14 +43,18 @@ STYLES = ("red", "blue", "original")
 
 
 def multistyle_run(run_dir, data):
-  """A multi-style run folder with random heads and three random style vectors."""
+  """A multi-style run folder with random params and three random style vectors."""
   config = config_lib.MultistyleConfig(nerf=NERF, style_hidden=32, style_hidden2=16)
   runs.prepare_run_dir(run_dir, "multistyle", {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "styles": list(STYLES)})
   runs.save_style_vectors(run_dir, np.random.default_rng(0).normal(
       size=(len(STYLES), 1024)).astype(np.float32) ** 2)
-  params = init_multistyle_params(config, jax.random.PRNGKey(1))
+  # Random params of the right tree (tracing, not running, flax's init: a second, not seven).
+  rng = np.random.default_rng(1)
+  params = jax.tree_util.tree_map(
+      lambda leaf: (0.3 * rng.normal(size=leaf.shape)).astype(np.float32),
+      jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(1))))
   import optax  # the checkpoint tree of a train state; the heads are what matter here.
   ckpts = checkpoint.Checkpoints(run_dir)
   ckpts.save(3, state_lib.checkpoint_tree(state_lib.create_state(params, optax.adam(1e-3))))
@@ -92,7 +96,7 @@ def _expected(viewer, view, width, height, style):
   camera = camera_lib.to_camera(view.wxyz, view.position, view.fov, h, w)
   out = render_lib.render_image(frames.field, frames.params, frames.scene.camera_rays(camera),
                                 frames.config, frames.scene.white_background,
-                                styles=jnp.asarray(style, jnp.float32)[None])
+                                frames.chunks["full"], jnp.asarray(style, jnp.float32)[None])
   return to_uint8(out["rgb"][0])
 
 
@@ -102,7 +106,8 @@ def _full_frame(probe, viewer, width, height, after):
 
 
 def _assert_same(frame, expected):
-  # Same rays, same params; only the chunking differs (a rounding step at most).
+  # Same rays, params and chunk size; the frame's rays are split into bands (a rounding
+  # step at most).
   assert frame.shape == expected.shape
   assert np.abs(frame.astype(int) - expected).max() <= 1
 
@@ -361,7 +366,8 @@ def test_nerf_run_is_viewed_without_style_controls(world):
     frames = viewer.frames
     camera = frames.camera(view, "full")
     out = render_lib.render_image(frames.field, frames.params, frames.scene.camera_rays(camera),
-                                  frames.config, frames.scene.white_background)
+                                  frames.config, frames.scene.white_background,
+                                  frames.chunks["full"])
     _assert_same(frame, to_uint8(out["rgb"]))
   finally:
     probe.close()
