@@ -10,6 +10,7 @@ from typing import Any, Dict, Optional
 import numpy as np
 
 from msnerf_jax import config as config_lib
+from msnerf_jax import run_lock
 from msnerf_jax.checkpoint import CHECKPOINT_DIR, Checkpoints
 from msnerf_jax.data.images import read_json, read_npy
 from msnerf_jax.files import write_json, write_npy
@@ -58,13 +59,16 @@ def load_config(path: str, kind: str) -> Any:
                               os.path.join(run_dir, RUN_FILE))
 
 
-def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
+def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any], lock: bool = False) -> bool:
   """Creates a run folder or checks that an existing one was made with the same settings.
 
   Args:
     run_dir: the folder.
     kind: "nerf", "adain", "multistyle".
     run: JSON-able dict with at least "config"; saved as run.json together with `kind`.
+    lock: a trainer's call: take the run folder's lock (msnerf_jax.run_lock) once the
+      settings are checked, before run.json is written; a trainer already running there
+      makes this a UserError naming it, and nothing is written.
   Returns:
     True when the folder already held this run (training resumes), False when new.
   Raises:
@@ -88,6 +92,8 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
     if mismatch:
       raise UserError(f"{run_dir}: was made with another config ({mismatch}); "
                       "use another --out, or the same options to resume")
+    if lock:
+      run_lock.acquire(run_dir)
     write_json(path, record)
     return True
   if os.path.isdir(run_dir) and os.listdir(run_dir):
@@ -95,6 +101,8 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any]) -> bool:
       raise UserError(f"{run_dir}: has checkpoints but no {RUN_FILE}; refusing to overwrite")
   try:
     os.makedirs(run_dir, exist_ok=True)
+    if lock:
+      run_lock.acquire(run_dir)
     write_json(path, record)
   except PermissionError:
     raise UserError(f"{run_dir}: not writable") from None

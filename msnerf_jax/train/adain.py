@@ -20,6 +20,7 @@ from msnerf_jax import checkpoint as checkpoint_lib
 from msnerf_jax import files
 from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
+from msnerf_jax import run_lock
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
@@ -248,6 +249,7 @@ def collect_content(content_dirs: Sequence[str], holdout_every: int) -> Tuple[Li
   return groups, held
 
 
+@run_lock.released_after
 def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
           run_dir: str, progress: bool = True, log=print) -> TrainResult:
   """Trains (or resumes) an AdaIN decoder in `run_dir`, on the shared loop (train.loop.fit).
@@ -276,7 +278,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   content_pools = [[load_for_crops(p, config.resize, config.size) for p in g] for g in groups]
   style_pools = [[load_for_crops(p, config.resize, config.size) for p in style_paths]]
 
-  resumed = runs_lib.prepare_run_dir(run_dir, KIND, record)
+  resumed = runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
   files.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
                                 "".join(p + "\n" for p in record["holdout"]).encode())
   checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)

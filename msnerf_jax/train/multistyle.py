@@ -16,6 +16,7 @@ from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import metrics
 from msnerf_jax import render as render_lib
+from msnerf_jax import run_lock
 from msnerf_jax.config import MultistyleConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, check_views
@@ -219,6 +220,7 @@ def check_compatible(stylized: StylizedData, scene: Scene, nerf_run_dir: str) ->
 # ----------------------------------------------------------------------------- the loop
 
 
+@run_lock.released_after
 def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
           callback: Optional[Callable[[int, Any], None]] = None) -> Dict[str, Any]:
@@ -236,7 +238,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   runs_lib.prepare_run_dir(run_dir, KIND, {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
-      "styles": list(stylized.names)})
+      "styles": list(stylized.names)}, lock=True)
   runs_lib.save_style_vectors(run_dir, stylized.vectors)
   train_idx = stylized.splits["train"]
   # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.

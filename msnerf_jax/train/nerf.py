@@ -12,6 +12,7 @@ from msnerf_jax import metrics
 from msnerf_jax import rays as rays_lib
 from msnerf_jax import regularizers
 from msnerf_jax import render as render_lib
+from msnerf_jax import run_lock
 from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
@@ -135,6 +136,7 @@ def init_state(config: NerfConfig) -> state_lib.TrainState:
 # ----------------------------------------------------------------------------- the loop
 
 
+@run_lock.released_after
 def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
           callback: Optional[Callable[[int, Any], None]] = None,
@@ -162,7 +164,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
                     f"channel (a Blender RGBA scene); this {scene.format} scene has none: "
                     "train with --no-random-background (and --distortion-weight against "
                     "floaters)")
-  runs.prepare_run_dir(run_dir, "nerf", record)
+  runs.prepare_run_dir(run_dir, "nerf", record, lock=True)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
   alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
