@@ -11,6 +11,7 @@ side. Exit code 0 when the render changed, 1 when not, 77 when no browser is ava
 """
 
 import argparse
+import importlib.util
 import io
 import os
 import shutil
@@ -93,9 +94,7 @@ def main():
   parser.add_argument("--run", required=True)
   parser.add_argument("--out", default=None, help="PNG of the two screenshots side by side")
   args = parser.parse_args()
-  try:
-    import playwright  # pylint: disable=g-import-not-at-top,unused-import
-  except ImportError:
+  if importlib.util.find_spec("playwright") is None:
     print("skipped: playwright is not installed (pip install playwright)")
     sys.exit(SKIP)
   if chromium_path() is None:

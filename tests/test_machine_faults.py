@@ -232,6 +232,8 @@ def test_disk_fills_during_a_checkpoint_then_resume_is_bit_identical(disk, scene
   assert f"{run}/checkpoints/8: " in line
   before = json.load(open(tmp_path / "before.json"))
   assert any(k.startswith("run/checkpoints/4/") for k in before)
+  # The trainer's own lock (msnerf_jax.run_lock) was there while it ran, and is gone now.
+  assert before.pop("run/trainer.lock", None) is not None
   assert hashes(str(disk)) == before  # checkpoint 4, run.json ...: byte-identical
   assert not temporaries(str(disk))
   os.remove(disk / "filler") if os.path.exists(disk / "filler") else None

@@ -62,7 +62,6 @@ class _ClientState:
   gui: Dict[str, Any]
   table: Dict[str, np.ndarray]  # style name -> vector: the run's styles and this tab's uploads
   view: Optional[View] = None
-  last_full: Optional[np.ndarray] = None
 
 
 class ViewerServer:
@@ -70,13 +69,13 @@ class ViewerServer:
   keyframes. `stop()` ends it."""
 
   def __init__(self, frames: Frames, out_dir: str, host: str = "127.0.0.1", port: int = 8080,
-               settle: float = 0.15, log: Callable[[str], Any] = print):
-    self.frames, self.out_dir, self.log = frames, out_dir, log
+               settle: float = 0.15):
+    self.frames, self.out_dir = frames, out_dir
     check_port(host, port)
     self._clients: Dict[int, _ClientState] = {}
     self._lock = threading.Lock()
     self._saves = 0
-    self.scheduler = Scheduler(self._render, self._deliver, settle)
+    self.scheduler = Scheduler(frames.render, self._deliver, settle)
     self.server = viser.ViserServer(host=host, port=port, label="msnerf view", verbose=False)
     if port and self.server.get_port() != port:  # taken between the check and the bind.
       self.stop()
@@ -97,18 +96,12 @@ class ViewerServer:
 
   # Rendering.
 
-  def _render(self, job, level, cancelled):
-    client_id, request = job
-    return self.frames.render(request, level, cancelled)
-
-  def _deliver(self, job_client, frame, level, seconds):
-    client_id = job_client
+  def _deliver(self, client_id, frame, level, seconds):
+    """Shows a rendered frame (uint8 [H, W, 3]) as the client's background, losslessly."""
     state = self._clients.get(client_id)
     if state is None:
       return
     state.handle.scene.set_background_image(frame, format="png")
-    if level == "full":
-      state.last_full = frame
     state.gui["frame"].value = (f"{level} {frame.shape[1]}x{frame.shape[0]} in "
                                 f"{seconds:.2f} s")
 
@@ -119,7 +112,7 @@ class ViewerServer:
       return
     style = self.frames.style_vector(self._choice(state), state.table) \
         if self.frames.has_styles else None
-    self.scheduler.update(client_id, (client_id, Request(state.view, style)))
+    self.scheduler.update(client_id, Request(state.view, style))
 
   # Clients.
 
@@ -329,7 +322,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   log(f"{run_dir}: {kind} run at step {run.step}, {scene.width}x{scene.height} frames"
       + (f", styles: {', '.join(frames.styles)}" if frames.has_styles else ""))
   frames.warm_up(log)
-  return ViewerServer(frames, out_dir or os.path.join(run_dir, "viewer"), host, port, log=log)
+  return ViewerServer(frames, out_dir or os.path.join(run_dir, "viewer"), host, port)
 
 
 def serve_forever(viewer: ViewerServer, should_stop: Callable[[], bool] = lambda: False,
