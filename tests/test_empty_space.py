@@ -113,6 +113,7 @@ def test_random_backgrounds_and_distortion_resume_bit_identically(tiny_blender, 
                                              leaves(msnerf_jax.load_run(white).params)))
 
 
+@pytest.mark.slow  # two trainings (40 s); the target's compositing stays in the default suite
 def test_random_backgrounds_keep_the_empty_region_empty(tmp_path):
   """The demo scene at 16x16: sky (alpha 0) around a textured object on a ground disc."""
   folder = demo.write_scene(str(tmp_path / "scene"), size=16, n_train=24, n_val=3,
