@@ -105,14 +105,18 @@ class ViewerServer:
     state.gui["frame"].value = (f"{level} {frame.shape[1]}x{frame.shape[0]} in "
                                 f"{seconds:.2f} s")
 
+  def _current(self, state: _ClientState) -> Request:
+    """The frame a client's view and controls ask for now."""
+    style = self.frames.style_vector(self._choice(state), state.table) \
+        if self.frames.has_styles else None
+    return Request(state.view, style)
+
   def _request(self, client_id: int) -> None:
     """Queues the client's current view and style."""
     state = self._clients.get(client_id)
     if state is None or state.view is None:
       return
-    style = self.frames.style_vector(self._choice(state), state.table) \
-        if self.frames.has_styles else None
-    self.scheduler.update(client_id, Request(state.view, style))
+    self.scheduler.update(client_id, self._current(state))
 
   # Clients.
 
@@ -259,9 +263,7 @@ class ViewerServer:
     state = self._clients.get(client_id)
     if state is None or state.view is None:
       return
-    style = self.frames.style_vector(self._choice(state), state.table) \
-        if self.frames.has_styles else None
-    frame = self.frames.render(Request(state.view, style), "full")
+    frame = self.frames.render(self._current(state), "full")
     import imageio.v3 as iio  # pylint: disable=g-import-not-at-top
     data = iio.imwrite("<bytes>", frame, extension=".png")
     try:
