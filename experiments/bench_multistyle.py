@@ -28,6 +28,7 @@ from msnerf_jax import render as render_lib
 from msnerf_jax.config import MultistyleConfig, nerf_preset
 from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params, multistyle_mlp
 from msnerf_jax.models.nerf import init_nerf_params
+from msnerf_jax.parallel import data_parallel
 from msnerf_jax.rays import get_rays, ray_bundle
 from msnerf_jax.train import multistyle
 
@@ -106,7 +107,7 @@ def main():
   # Ours: B pixels x M styles per step.
   ours_batch = {"rays": rays, "random": random,
                 "rgb": jax.random.randint(key, (b, m, 3), 0, 256).astype(jnp.uint8)}
-  ours = multistyle.compile_train_step(config, styles, True, 1)
+  ours = multistyle.compile_train_step(config, styles, True, data_parallel(1))
   holder = {"s": state}
 
   def run_ours():

@@ -24,6 +24,7 @@ import numpy as np
 
 from msnerf_jax.config import nerf_preset
 from msnerf_jax.models.nerf import NerfField, mlp_flops_per_sample
+from msnerf_jax.parallel import data_parallel
 from msnerf_jax.render import render_image
 from msnerf_jax.train import nerf
 
@@ -80,7 +81,7 @@ def main():
   for preset in args.presets:
     config = nerf_preset(preset, "blender")
     state = nerf.init_state(config)
-    step = nerf.compile_train_step(config, True, 1)
+    step = nerf.compile_train_step(config, True, data_parallel(1))
     batch = synthetic_batch(config, jax.random.PRNGKey(0))
     holder = {"state": state}
 

@@ -62,7 +62,8 @@ class Checkpoints:
       self._remove_temporary()
     options = ocp.CheckpointManagerOptions(
         max_to_keep=keep, create=True, enable_async_checkpointing=False)
-    self._manager = ocp.CheckpointManager(self.directory, options=options)
+    self._manager = ocp.CheckpointManager(self.directory, options=options,
+                                          item_handlers=ocp.StandardCheckpointHandler())
 
   def all_steps(self):
     return list(self._manager.all_steps())
@@ -102,13 +103,17 @@ class Checkpoints:
         shutil.rmtree(os.path.join(self.directory, name), ignore_errors=True)
 
   def restore(self, template: Any = None, step: Optional[int] = None) -> Any:
-    """The checkpoint at `step` (default latest) shaped like `template` (or raw dicts)."""
+    """The checkpoint at `step` (default latest) shaped like `template` (or raw dicts),
+    as numpy arrays (however many processes and devices saved it or read it)."""
     step = self.latest_step() if step is None else step
     if step is None:
       raise UserError(f"{self.directory}: no checkpoint yet")
     try:
       if template is None:
-        return self._manager.restore(step, args=ocp.args.StandardRestore())
+        # The stored shapes and dtypes as a numpy template: restoring without one would
+        # place arrays as they were saved, which fails under another device topology.
+        template = jax.tree_util.tree_map(lambda m: np.zeros(m.shape, m.dtype),
+                                          self._manager.item_metadata(step))
       return self._manager.restore(step, args=ocp.args.StandardRestore(template))
     except (ValueError, KeyError, TypeError) as e:
       raise UserError(f"{self.directory}/{step}: checkpoint does not match this config "

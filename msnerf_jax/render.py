@@ -9,6 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jax.sharding import Mesh, PartitionSpec
+
+from msnerf_jax import parallel
 from msnerf_jax import sampling
 from msnerf_jax.volume_rendering import volume_render
 
@@ -213,39 +216,70 @@ def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.
 IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
 
 
-@functools.partial(jax.jit, static_argnums=(0, 2, 3))
-def _render_chunk(field_fn, params, config, white_background, rays, styles=None):
+def _image_outputs(field_fn, params, config, white_background, rays, styles=None):
   out = render_rays(field_fn, params, rays, config, None, white_background,
                     conditioning=styles)["fine"]
   return {k: out[k] for k in IMAGE_OUTPUTS}
 
 
+_render_chunk = jax.jit(_image_outputs, static_argnums=(0, 2, 3))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2, 3, 4))
+def _render_chunk_sharded(field_fn, params, config, white_background, mesh: Mesh, rays,
+                          styles=None):
+  """_image_outputs with the rays split over the devices of `mesh` (shard_map)."""
+  split, whole = PartitionSpec(parallel.AXIS), PartitionSpec()
+  ray_axis = split if styles is None else PartitionSpec(None, parallel.AXIS)
+  return jax.shard_map(
+      lambda p, r, s: _image_outputs(field_fn, p, config, white_background, r, s), mesh=mesh,
+      in_specs=(whole, split, whole), out_specs=ray_axis)(params, rays, styles)
+
+
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
                  white_background: bool = False, chunk: Optional[int] = None,
-                 styles: Optional[jnp.ndarray] = None) -> Dict[str, np.ndarray]:
+                 styles: Optional[jnp.ndarray] = None, mesh: Optional[Mesh] = None
+                 ) -> Dict[str, np.ndarray]:
   """Renders rays of any leading shape (an image [H, W]) chunk by chunk, deterministically.
 
-  Each jitted call sees exactly `chunk` rays (the last chunk is padded), so peak memory
-  depends on the chunk size, not on the image size, and there is one compilation.
+  Each jitted call sees exactly `chunk` rays per device (the last call is padded), so peak
+  memory depends on the chunk size, not on the image size, and there is one compilation.
   With `styles` [M, style_dim] and a style field, renders all M styles in each call (a style
   sweep: the trunk runs once per sample for all of them, see render_rays_styles).
+
+  `mesh` (parallel.AXIS; default: every device of this process, parallel.local_mesh):
+  each call's rays are split over its devices (shard_map), `chunk` on each; a mesh of
+  every process's devices (parallel.data_mesh after msnerf_jax.distributed.initialize)
+  splits them over the processes too, and then every process calls this with the same
+  rays and gets the whole image.
 
   Returns:
     numpy dict of rgb [..., 3], depth, disparity, accumulation [...] (fine network), each
     with a leading [M] when `styles` is given.
   """
   chunk = chunk or config.render_chunk
+  mesh = mesh or parallel.local_mesh()
+  if mesh.size > 1:
+    params = parallel.replicated(params, mesh)
+    styles = None if styles is None else parallel.replicated(styles, mesh)
+  per_call = chunk * mesh.size
   shape = rays["origins"].shape[:-1]
   flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
   n = flat["origins"].shape[0]
   axis = 0 if styles is None else 1  # where the ray axis of the outputs is.
   outputs = {k: [] for k in IMAGE_OUTPUTS}
-  for start in range(0, n, chunk):
-    piece = {k: v[start:start + chunk] for k, v in flat.items()}
+  for start in range(0, n, per_call):
+    piece = {k: v[start:start + per_call] for k, v in flat.items()}
     size = piece["origins"].shape[0]
-    if size < chunk:  # pad with copies of the first ray: same shapes, one compilation.
-      piece = {k: np.concatenate([v, np.repeat(v[:1], chunk - size, 0)]) for k, v in piece.items()}
-    out = _render_chunk(field_fn, params, config, white_background, piece, styles)
+    if size < per_call:  # pad with copies of the first ray: same shapes, one compilation.
+      piece = {k: np.concatenate([v, np.repeat(v[:1], per_call - size, 0)])
+               for k, v in piece.items()}
+    if mesh.size == 1:
+      out = _render_chunk(field_fn, params, config, white_background, piece, styles)
+    else:
+      out = parallel.gather(_render_chunk_sharded(field_fn, params, config, white_background,
+                                                  mesh, parallel.split_rows(piece, mesh),
+                                                  styles))
     for k in IMAGE_OUTPUTS:
       outputs[k].append(np.take(np.asarray(out[k]), np.arange(size), axis=axis))
   result = {}

@@ -60,7 +60,49 @@ def print_training_summary(title: str, summary, what: str, next_hint: str) -> No
   print_summary(title, [
       ("run", summary["run_dir"]),
       ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
-      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
+      ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"
+               + (f" of {summary['processes']} processes" if summary.get("processes", 1) > 1
+                  else "")),
       ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
                      f"PSNR {summary.get('psnr', float('nan')):.2f} dB{what}"),
       ("next", next_hint)])
+
+
+def add_parallel_arguments(parser) -> None:
+  """--devices, --parallel and the multi-process options of the training verbs."""
+  group = parser.add_argument_group(
+      "devices and processes",
+      "Data parallel: every device computes its share of the batch, gradients are averaged. "
+      "Several processes (hosts) train one run with jax.distributed: start the same command "
+      "in each, with --coordinator, --num-processes and --process-id (or --coordinator auto "
+      "under SLURM and the other clusters jax.distributed detects); process 0 writes the run "
+      "folder, which every process must see (a shared file system).")
+  group.add_argument("--devices", type=int, default=None,
+                     help="devices to train on (default: all; with several processes, all "
+                          "devices of all of them)")
+  group.add_argument("--parallel", default="shard_map", choices=("shard_map", "pmap"),
+                     help="jax.shard_map over a mesh of every device, or jax.pmap over this "
+                          "process's (one process only); the same result")
+  group.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                     help="process 0's address (it listens on PORT), or 'auto'")
+  group.add_argument("--num-processes", type=int, default=None, metavar="N",
+                     help="how many processes train together")
+  group.add_argument("--process-id", type=int, default=None, metavar="I",
+                     help="this process's id, 0..N-1 (0 writes the run folder)")
+  group.add_argument("--coordinator-timeout", type=float, default=300.0, metavar="S",
+                     help="seconds to wait for every process to join")
+
+
+def start_processes(args) -> bool:
+  """Joins the other processes when --coordinator is given (before anything else uses
+  JAX); returns whether this process prints (process 0, or the only one)."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import distributed
+  from msnerf_jax.errors import UserError
+  if args.coordinator is None:
+    if args.num_processes is not None or args.process_id is not None:
+      raise UserError("--num-processes and --process-id need --coordinator HOST:PORT")
+    return True
+  distributed.initialize(args.coordinator, args.num_processes, args.process_id,
+                         args.coordinator_timeout)
+  return distributed.is_primary()

@@ -5,9 +5,9 @@ import os
 import time
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (add_camera_path_arguments, load_run_and_scene, output_stem,
-                                   print_summary, render_cameras,
-                                   print_training_summary)
+from msnerf_jax.cli.common import (add_camera_path_arguments, add_parallel_arguments,
+                                   load_run_and_scene, output_stem, print_summary,
+                                   print_training_summary, render_cameras, start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
 from msnerf_jax.errors import UserError
@@ -82,8 +82,7 @@ def register(commands, formatter):
   p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
                  help="steps between checkpoints")
   p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
-  p.add_argument("--devices", type=int, default=None,
-                 help="local devices to train on (default: all; gradients are averaged)")
+  add_parallel_arguments(p)
   add_config_option(p, "multistyle")
   add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS,
                        title="every other multi-style setting", skip=(
@@ -176,6 +175,7 @@ def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.stylized import load_stylized
   from msnerf_jax.train import multistyle
+  shows = start_processes(args)
   if args.steps < 1:
     raise UserError(f"--steps {args.steps}: must be >= 1")
   if not args.lr > 0:
@@ -195,14 +195,17 @@ def cmd_train(args):
   # --lr also sets lr_final (lr / 10) unless --lr-final is given.
   config = start_config(args, "multistyle", built,
                         {"lr_init": "lr", "lr_final": "lr_final" if args.lr_final else "lr"})
-  stylized = load_stylized(args.stylized)
-  print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
-        f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")
-  summary = multistyle.train(config, args.nerf, stylized, args.out, n_devices=args.devices)
-  print_training_summary("multi-style training done", summary, " (all styles)",
-                         f"msnerf multistyle eval --run {args.out}; msnerf render --run "
-                         f"{args.out} --out {os.path.join(args.out, 'video')}; msnerf view "
-                         f"--run {args.out}")
+  stylized = load_stylized(args.stylized, progress=shows)
+  if shows:
+    print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "
+          f"({', '.join(stylized.names)}), {len(stylized.splits['train'])} training views")
+  summary = multistyle.train(config, args.nerf, stylized, args.out, n_devices=args.devices,
+                             parallel=args.parallel)
+  if shows:
+    print_training_summary("multi-style training done", summary, " (all styles)",
+                           f"msnerf multistyle eval --run {args.out}; msnerf render --run "
+                           f"{args.out} --out {os.path.join(args.out, 'video')}; msnerf view "
+                           f"--run {args.out}")
 
 
 def cmd_eval(args):

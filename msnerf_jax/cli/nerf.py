@@ -8,9 +8,10 @@ import time
 import numpy as np
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (add_camera_path_arguments, check_path_options,
-                                   load_run_and_scene, output_stem, print_summary,
-                                   print_training_summary, render_cameras)
+from msnerf_jax.cli.common import (add_camera_path_arguments, add_parallel_arguments,
+                                   check_path_options, load_run_and_scene, output_stem,
+                                   print_summary, print_training_summary, render_cameras,
+                                   start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
 from msnerf_jax.errors import UserError
@@ -57,8 +58,7 @@ def register(commands, formatter):
                  help="weight of the mip-NeRF 360 distortion loss against semi-transparent "
                       "floaters, for scenes without alpha (default: 0, off)")
   p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-  p.add_argument("--devices", type=int, default=None,
-                 help="local devices to train on (default: all; gradients are averaged)")
+  add_parallel_arguments(p)
   p.add_argument("--stylized", default=None, metavar="DIR",
                  help="train on one style's views of this stylized dataset (`msnerf "
                       "stylize-scene` of the same scene) instead of the photos: the "
@@ -109,6 +109,7 @@ def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.scene import load_scene
   from msnerf_jax.train import nerf
+  shows = start_processes(args)
   data_config = config_lib.override(
       config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale),
       **config_overrides(args, config_lib.DataConfig))
@@ -136,15 +137,18 @@ def cmd_train(args):
     scene = style_views(style["stylized"], args.style, scene)
   config = start_config(args, "nerf", config_lib.nerf_preset(
       args.preset, data_config.format, **config_overrides(args, config_lib.NerfConfig)))
-  print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} training "
-        f"views of {scene.width}x{scene.height}; "
-        + (f"{scene.layout}; " if scene.layout else "")
-        + (f"config of {args.config}" if args.config else f"preset {args.preset}")
-        + (f"; style {args.style} of {args.stylized}" if style else ""))
-  summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices, style=style)
-  print_training_summary("NeRF training done", summary, "",
-                         f"msnerf nerf eval --run {args.out}; msnerf nerf render --run "
-                         f"{args.out} --out {os.path.join(args.out, 'video')}")
+  if shows:
+    print(f"scene {data_config.path}: {data_config.format}, {len(scene.split('train'))} "
+          f"training views of {scene.width}x{scene.height}; "
+          + (f"{scene.layout}; " if scene.layout else "")
+          + (f"config of {args.config}" if args.config else f"preset {args.preset}")
+          + (f"; style {args.style} of {args.stylized}" if style else ""))
+  summary = nerf.train(scene, config, data_config, args.out, n_devices=args.devices, style=style,
+                       parallel=args.parallel)
+  if shows:
+    print_training_summary("NeRF training done", summary, "",
+                           f"msnerf nerf eval --run {args.out}; msnerf nerf render --run "
+                           f"{args.out} --out {os.path.join(args.out, 'video')}")
 
 
 def _load(run_dir):

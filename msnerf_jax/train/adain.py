@@ -25,6 +25,7 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
+from msnerf_jax.parallel import data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
@@ -342,7 +343,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   try:
     summary = loop_lib.fit(state, step_fn, batches, run_dir=run_dir, steps=config.steps,
                            checkpoint_every=config.checkpoint_every,
-                           keep_checkpoints=config.keep_checkpoints, n_devices=1, desc="adain",
+                           keep_checkpoints=config.keep_checkpoints, parallel=data_parallel(1), desc="adain",
                            progress=progress, on_step=on_step, shown=("content", "style"),
                            history=False)
   finally:

@@ -1,44 +1,28 @@
-"""The training loop every trainer (NeRF, multi-style, AdaIN) shares: batches -> (p)jitted
-step -> progress, NaN guard, history and atomic checkpoints with resume."""
+"""The training loop every trainer (NeRF, multi-style, AdaIN) shares: batches -> a
+data-parallel step (msnerf_jax.parallel) -> progress, NaN guard, history and atomic
+checkpoints with resume, on one process or several (msnerf_jax.distributed)."""
 
-import functools
 import json
 import os
 import time
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Optional, Sequence
 
 import jax
 import numpy as np
 
 from msnerf_jax import checkpoint as ckpt_lib
+from msnerf_jax import distributed
 from msnerf_jax import files
 from msnerf_jax.errors import Interrupted, UserError
+from msnerf_jax.parallel import DataParallel
 from msnerf_jax.progress import progress_bar
 from msnerf_jax.train import state as state_lib
 from msnerf_jax.train import stop as stop_lib
 
 
-def compile_step(step_fn: Callable, n_devices: int, constants: Tuple[Any, ...] = ()
-                 ) -> Callable:
-  """`(state, batch) -> (state, stats)`: jax.jit (one device) or jax.pmap over axis "batch"
-  (several) of `step_fn(state, batch, *constants, axis_name=None)`; the state is donated.
-
-  `constants` (pytrees every step reads unchanged: style vectors, a frozen encoder) are put
-  on the device(s) once, here, and passed as arguments rather than baked into the program.
-  """
-  if n_devices == 1:
-    compiled = jax.jit(step_fn, donate_argnums=0)
-    placed = jax.device_put(constants)
-  else:
-    compiled = jax.pmap(functools.partial(step_fn, axis_name="batch"), axis_name="batch",
-                        donate_argnums=0)
-    placed = state_lib.replicate(constants, jax.local_devices()[:n_devices])
-  return lambda state, batch: compiled(state, batch, *placed)
-
-
 def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int], Any], *,
         run_dir: str, steps: int, checkpoint_every: int, keep_checkpoints: int,
-        n_devices: int, desc: str, progress: bool = True,
+        parallel: DataParallel, desc: str, progress: bool = True,
         callback: Optional[Callable[[int, Any], None]] = None,
         on_step: Optional[Callable[[int, Any, Dict[str, Any]], None]] = None,
         shown: Sequence[str] = ("psnr",), history: bool = True,
@@ -47,9 +31,13 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
 
   Args:
     state: a fresh TrainState (the template for restoring).
-    step_fn: compiled `(state, batch) -> (state, stats)`; stats has "loss" and the `shown`.
+    step_fn: `parallel.compile`d `(state, batch) -> (state, stats)`; stats has "loss" and
+      the `shown`.
     batch_fn: step -> the global batch of that step (a pure function of the step, so a
-      resumed run replays the same batches).
+      resumed run replays the same batches, and every process computes the same one).
+    parallel: the devices (and processes) the step runs on. With several processes, only
+      process 0 shows progress, writes the history and runs `callback`; all of them take
+      part in the checkpoints (orbax) and stop at the same step.
     callback: `callback(step, params)` after every checkpoint; not counted in the time.
     on_step: `on_step(step, state, stats)` after every step, before the loss check and that
       step's checkpoint: a trainer's own checks (raise to stop; that step is not saved) and
@@ -60,7 +48,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
       finishes, a checkpoint is saved there unless this process saved one less than this
       many seconds ago, and Interrupted is raised.
   Returns:
-    summary dict: run_dir, steps, resumed_from, seconds, devices and the last stats.
+    summary dict: run_dir, steps, resumed_from, seconds, devices, processes and the last
+    stats.
   Raises:
     Interrupted on SIGTERM or Ctrl-C (after the save above).
     DiskError when the checkpoints will not fit (checked before the first step) or a save
@@ -83,8 +72,9 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
   except BaseException:
     checkpoints.close()
     raise
-  if n_devices > 1:
-    state = state_lib.replicate(state, jax.local_devices()[:n_devices])
+  state = parallel.put_state(state)
+  primary = distributed.is_primary()
+  history = history and primary
   t0 = time.time()
   stats, curve = {}, []
   last_save = None  # (step, time) of the last checkpoint this process saved
@@ -92,7 +82,7 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
 
   def save(done):
     nonlocal last_save
-    host = state_lib.unreplicate(state) if n_devices > 1 else state
+    host = parallel.to_host(state)
     checkpoints.save(done, state_lib.checkpoint_tree(host))
     last_save = (done, time.time())
     return host
@@ -100,30 +90,28 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
   try:
     with stop_lib.stop_requests() as stop_requested:
       bar = progress_bar(range(start, steps), initial=start, total=steps, desc=desc,
-                         disable=not progress)
+                         disable=not (progress and primary))
       for step in bar:
-        batch = batch_fn(step)
-        if n_devices > 1:
-          batch = state_lib.shard(batch, n_devices)
-        state, stats = step_fn(state, batch)
+        state, stats = step_fn(state, parallel.put_batch(batch_fn(step)))
         if on_step is not None:
           on_step(step + 1, state, stats)
-        loss = float(np.asarray(stats["loss"]).reshape(-1)[0])
+        stats = parallel.to_host(stats)
+        loss = float(stats["loss"])
         if not np.isfinite(loss):
           raise UserError(f"loss became {loss} at step {step + 1}; training stopped, the last "
                           f"good checkpoint (step {checkpoints.latest_step()}) is kept")
         done = step + 1
         if done % 25 == 0 or done == steps:
-          values = {k: float(np.asarray(stats[k]).reshape(-1)[0]) for k in shown}
+          values = {k: float(stats[k]) for k in shown}
           bar.set_postfix(loss=f"{loss:.4f}", **{k: f"{v:.2f}" for k, v in values.items()})
           curve.append({"step": done, "loss": loss, **values, "time": time.time() - t0})
         if done % checkpoint_every == 0 or done == steps:
           host = save(done)
-          if callback is not None:
+          if callback is not None and primary:
             t_cb = time.time()
             callback(done, host.params)
             t0 += time.time() - t_cb
-        signum = stop_requested()
+        signum = distributed.agreed_stop(stop_requested())
         if signum is not None and done < steps:
           # Save unless this process saved less than a minute ago: a preempted job loses
           # at most a minute, and a quick second request is not slowed by a save.
@@ -138,9 +126,10 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
     checkpoints.close()
   if history:
     append_history(run_dir, curve)
-  final = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in stats.items()}
+  final = {k: float(v) for k, v in stats.items()}
   return {"run_dir": run_dir, "steps": steps, "resumed_from": start,
-          "seconds": time.time() - t0, "devices": n_devices, **final}
+          "seconds": time.time() - t0, "devices": parallel.size,
+          "processes": jax.process_count(), **final}
 
 
 def append_history(run_dir: str, history):

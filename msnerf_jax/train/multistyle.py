@@ -14,6 +14,7 @@ import numpy as np
 from msnerf_jax import adain as adain_lib
 from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
+from msnerf_jax import distributed
 from msnerf_jax import metrics
 from msnerf_jax import render as render_lib
 from msnerf_jax import run_lock
@@ -23,6 +24,7 @@ from msnerf_jax.data.stylized import StylizedData, check_views
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
 from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
+from msnerf_jax.parallel import DataParallel, data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -137,14 +139,14 @@ def train_step(state: state_lib.TrainState, batch, styles, encoder=None, *,
 
 
 def compile_train_step(config: MultistyleConfig, styles: np.ndarray, white_background: bool,
-                       n_devices: int, encoder=None) -> Callable:
-  """jit/pmap step with the style vectors [M, 1024] (and, with a style loss, the VGG
-  encoder's params) placed once on every device."""
+                       parallel: DataParallel, encoder=None) -> Callable:
+  """train_step compiled for `parallel`'s devices, with the style vectors [M, 1024] (and,
+  with a style loss, the VGG encoder's params) placed once on every device."""
   if config.style_weight > 0 and encoder is None:
     raise ValueError("a style loss needs the encoder's params (vgg.load_vgg_params())")
   constants = (jnp.asarray(styles, jnp.float32),) + ((encoder,) if config.style_weight > 0 else ())
-  return loop_lib.compile_step(functools.partial(
-      train_step, config=config, white_background=white_background), n_devices, constants)
+  return parallel.compile(functools.partial(
+      train_step, config=config, white_background=white_background), constants)
 
 
 def sample_batch(key, images, c2w, K, config: MultistyleConfig, scene: Scene, coeffs=None):
@@ -223,23 +225,28 @@ def check_compatible(stylized: StylizedData, scene: Scene, nerf_run_dir: str) ->
 @run_lock.released_after
 def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
-          callback: Optional[Callable[[int, Any], None]] = None) -> Dict[str, Any]:
+          callback: Optional[Callable[[int, Any], None]] = None, parallel: str = "shard_map"
+          ) -> Dict[str, Any]:
   """Trains (or resumes) a multi-style NeRF in `run_dir` from a NeRF run and a stylized dataset.
 
-  `config.nerf` is replaced by the NeRF run's config. Returns the loop's summary dict.
+  `config.nerf` is replaced by the NeRF run's config. Devices and processes as nerf.train's
+  (`n_devices`, `parallel`). Returns the loop's summary dict.
   """
   nerf_run, scene, data = load_nerf_run(nerf_run_dir)
   config = dataclasses.replace(config, nerf=nerf_run.config)
   check_compatible(stylized, scene, nerf_run_dir)
-  n_devices = n_devices or jax.local_device_count()
-  if config.batch_rays % n_devices:
-    raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
-  check_style_loss(config, scene, n_devices)
-  runs_lib.prepare_run_dir(run_dir, KIND, {
-      "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
-      "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
-      "styles": list(stylized.names)}, lock=True)
-  runs_lib.save_style_vectors(run_dir, stylized.vectors)
+  devices = data_parallel(n_devices, parallel)
+  nerf_lib.check_batch_splits(config.batch_rays, devices)
+  check_style_loss(config, scene, devices.size)
+  record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
+            "nerf_run": os.path.abspath(nerf_run_dir), "stylized": os.path.abspath(stylized.path),
+            "styles": list(stylized.names)}
+  distributed.check_same(record, "settings")
+
+  def prepare():
+    runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
+    runs_lib.save_style_vectors(run_dir, stylized.vectors)
+  distributed.primary_first(prepare)
   train_idx = stylized.splits["train"]
   # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.
   images = jnp.asarray(np.moveaxis(stylized.images[:, train_idx], 0, 3))
@@ -247,12 +254,12 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
   base_key = jax.random.PRNGKey(config.seed)
   encoder = vgg.load_vgg_params() if config.style_weight > 0 else None
-  step_fn = compile_train_step(config, stylized.vectors, scene.white_background, n_devices,
+  step_fn = compile_train_step(config, stylized.vectors, scene.white_background, devices,
                                encoder)
   return loop_lib.fit(
       init_state(config, nerf_run.params), step_fn,
       lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene,
                                 coeffs),
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
-      keep_checkpoints=config.keep_checkpoints, n_devices=n_devices, desc="multistyle train",
+      keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="multistyle train",
       progress=progress, callback=callback)

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 
 from msnerf_jax import runs
 from msnerf_jax import config as config_lib
+from msnerf_jax import distributed
 from msnerf_jax import metrics
 from msnerf_jax import rays as rays_lib
 from msnerf_jax import regularizers
@@ -17,6 +18,7 @@ from msnerf_jax.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
+from msnerf_jax.parallel import DataParallel, data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
@@ -105,9 +107,10 @@ def loss_fn(params, batch, config: NerfConfig, white_background: bool):
 
 def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
                white_background: bool, axis_name: Optional[str] = None):
-  """One optimizer step on a batch; under pmap, gradients are averaged across `axis_name`.
+  """One optimizer step on a batch; with an `axis_name`, gradients are averaged across it.
 
-  The same function runs under jax.jit (axis_name=None) or jax.pmap(axis_name="batch").
+  The same function runs under jax.jit (axis_name=None), or per device under jax.shard_map
+  or jax.pmap (axis_name="batch"): see msnerf_jax.parallel.
   """
   grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, config, white_background)
   if axis_name is not None:
@@ -117,13 +120,12 @@ def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
 
 
 @functools.lru_cache(maxsize=8)
-def compile_train_step(config: NerfConfig, white_background: bool, n_devices: int):
-  """jit (one device) or pmap (several) wrapper of train_step; the state is donated.
-
-  Cached per (config, background, devices), so resuming in one process compiles once.
-  """
-  return loop_lib.compile_step(functools.partial(train_step, config=config,
-                                                 white_background=white_background), n_devices)
+def compile_train_step(config: NerfConfig, white_background: bool, parallel: DataParallel):
+  """train_step compiled for `parallel`'s devices (DataParallel.compile); the state is
+  donated. Cached per (config, background, parallel), so resuming in one process compiles
+  once."""
+  return parallel.compile(functools.partial(train_step, config=config,
+                                            white_background=white_background))
 
 
 def init_state(config: NerfConfig) -> state_lib.TrainState:
@@ -136,11 +138,18 @@ def init_state(config: NerfConfig) -> state_lib.TrainState:
 # ----------------------------------------------------------------------------- the loop
 
 
+def check_batch_splits(batch_rays: int, parallel: DataParallel) -> None:
+  """UserError unless the global batch splits evenly over the devices."""
+  if batch_rays % parallel.size:
+    raise UserError(f"batch of {batch_rays} rays does not split over {parallel.size} devices")
+
+
 @run_lock.released_after
 def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
           callback: Optional[Callable[[int, Any], None]] = None,
-          style: Optional[Dict[str, str]] = None) -> Dict[str, Any]:
+          style: Optional[Dict[str, str]] = None, parallel: str = "shard_map"
+          ) -> Dict[str, Any]:
   """Trains (or resumes) a NeRF run in `run_dir`; returns a summary dict.
 
   `style` ({"stylized": dataset folder, "name": style}) records that the scene's images are
@@ -152,10 +161,13 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   a UserError naming the step; the last good checkpoint stays the latest one.
   `callback(step, params)` runs after every checkpoint (benchmarks evaluate there); its
   time is not counted in the summary's training seconds.
+
+  `n_devices` (default: all) and `parallel` ("shard_map" or "pmap") choose the devices:
+  parallel.data_parallel. After msnerf_jax.distributed.initialize, every process calls
+  this with the same arguments and the step spans all their devices; process 0 writes.
   """
-  n_devices = n_devices or jax.local_device_count()
-  if config.batch_rays % n_devices:
-    raise UserError(f"batch of {config.batch_rays} rays does not split over {n_devices} devices")
+  devices = data_parallel(n_devices, parallel)
+  check_batch_splits(config.batch_rays, devices)
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)}
   if style is not None:
     record["style"] = dict(style)
@@ -164,7 +176,8 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
                     f"channel (a Blender RGBA scene); this {scene.format} scene has none: "
                     "train with --no-random-background (and --distortion-weight against "
                     "floaters)")
-  runs.prepare_run_dir(run_dir, "nerf", record, lock=True)
+  distributed.check_same(record, "settings")
+  distributed.primary_first(runs.prepare_run_dir, run_dir, "nerf", record, lock=True)
   train_idx = scene.split("train")
   images = jnp.asarray(scene.images[train_idx])
   alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
@@ -179,8 +192,8 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
                         alphas, coeffs)
 
   return loop_lib.fit(init_state(config), compile_train_step(config, scene.white_background,
-                                                             n_devices),
+                                                             devices),
                       batch_fn, run_dir=run_dir, steps=config.steps,
                       checkpoint_every=config.checkpoint_every,
-                      keep_checkpoints=config.keep_checkpoints, n_devices=n_devices,
+                      keep_checkpoints=config.keep_checkpoints, parallel=devices,
                       desc="nerf train", progress=progress, callback=callback)

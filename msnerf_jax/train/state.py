@@ -1,10 +1,9 @@
-"""Shared training machinery: TrainState, optimizers with a freeze mask, device sharding."""
+"""Shared training machinery: TrainState, optimizers with a freeze mask (devices:
+msnerf_jax.parallel)."""
 
 from typing import Any, Callable, Optional
 
-import flax
 import jax
-import numpy as np
 import optax
 from flax.training import train_state
 
@@ -42,18 +41,3 @@ def checkpoint_tree(state: TrainState):
 
 def restore_state(state: TrainState, tree) -> TrainState:
   return state.replace(step=tree["step"], params=tree["params"], opt_state=tree["opt_state"])
-
-
-def shard(batch, n_devices: int):
-  """Splits the leading (global batch) axis of every leaf into [n_devices, batch / n, ...]."""
-  return jax.tree_util.tree_map(
-      lambda x: x.reshape(n_devices, x.shape[0] // n_devices, *x.shape[1:]), batch)
-
-
-def replicate(tree, devices=None):
-  return flax.jax_utils.replicate(tree, devices)
-
-
-def unreplicate(tree):
-  return jax.tree_util.tree_map(lambda x: np.asarray(x[0]), tree)
-
