@@ -60,6 +60,7 @@ def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
   assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
 
 
+@pytest.mark.slow  # 20 s; the flags' parsing is also covered by test_cli_config
 def test_architecture_flags_reach_the_config_and_the_model(tiny_blender, tmp_path):
   run = str(tmp_path / "run")
   r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "32",

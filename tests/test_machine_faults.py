@@ -221,6 +221,7 @@ def test_training_on_a_full_disk_is_refused_up_front(disk, scene, env, tmp_path)
   assert not os.listdir(os.path.join(run, "checkpoints"))
 
 
+@pytest.mark.slow  # 40 s; a full disk refused up front and during videos stay in the default suite
 def test_disk_fills_during_a_checkpoint_then_resume_is_bit_identical(disk, scene, env,
                                                                     tmp_path):
   run = str(disk / "run")

