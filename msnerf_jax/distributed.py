@@ -74,7 +74,10 @@ def _gather_joins(port: int, num_processes: int, timeout: float, coordinator: st
         conn, _ = server.accept()
       except socket.timeout:
         continue
-      words = _read_line(conn, deadline).split()
+      try:  # one of ours says hello at once
+        words = _read_line(conn, min(deadline, time.monotonic() + 5.0)).split()
+      except OSError:
+        words = []
       if len(words) != 3 or words[0] != HELLO or not all(w.isdigit() for w in words[1:]):
         conn.close()  # not one of ours (a port scan): ignore it
         continue
@@ -83,10 +86,10 @@ def _gather_joins(port: int, num_processes: int, timeout: float, coordinator: st
       if count != num_processes:
         problem = (f"process {pid} was started with --num-processes {count}, process 0 "
                    f"with {num_processes}")
-      elif not 0 < pid < num_processes:
-        problem = f"process id {pid} is out of range 0..{num_processes - 1}"
-      elif pid in joined:
+      elif pid in joined or pid == 0:
         problem = f"two processes were started with --process-id {pid}"
+      elif pid >= num_processes:
+        problem = f"process id {pid} is out of range 0..{num_processes - 1}"
       joined.add(pid)
     reply = f"error {problem}\n" if problem else "ok\n"
     for conn in connections:
