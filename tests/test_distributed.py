@@ -241,3 +241,22 @@ def test_bad_process_settings_end_with_one_line(inputs, tmp_path):
   assert wait_all(start_processes([argv + ["--parallel", "pmap"]] * 2, env, log)) == [2, 2]
   one_line_error(log + "1", "--parallel pmap runs within one process")
   assert not os.path.exists(run)
+
+
+def test_device_counts_and_modes_that_cannot_work_are_one_line(tiny_blender, tmp_path, capsys):
+  from msnerf_jax import cli  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import parallel  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  import jax  # pylint: disable=g-import-not-at-top
+  have = jax.local_device_count()
+  with pytest.raises(UserError, match=f"{have + 1} devices asked for; this machine has {have}"):
+    parallel.data_parallel(have + 1)
+  with pytest.raises(UserError, match="parallel mode 'vmap'"):
+    parallel.data_parallel(1, "vmap")
+  run = tmp_path / "run"
+  assert cli.main(["nerf", "train", "--data", tiny_blender, "--out", str(run), "--steps", "1",
+                   "--devices", str(have + 1)]) == 2
+  err_lines = capsys.readouterr().err.strip().splitlines()
+  assert err_lines == [f"msnerf: error: {have + 1} devices asked for; this machine has "
+                       f"{have} (cpu)"]
+  assert not run.exists()
