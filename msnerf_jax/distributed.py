@@ -21,6 +21,7 @@ from typing import Any, Callable, Optional
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
 from msnerf_jax.errors import UserError
 
@@ -129,9 +130,7 @@ def _join(host: str, port: int, num_processes: int, process_id: int, timeout: fl
       return
     if answer.startswith("error "):
       raise UserError(f"coordinator {coordinator}: {answer[len('error '):]}")
-    if not answer and time.monotonic() >= deadline:
-      continue  # reported as unreachable above
-    time.sleep(0.2)  # the coordinator went away meanwhile: try again
+    time.sleep(0.2)  # the coordinator went away meanwhile: try again (until the deadline)
 
 
 def initialize(coordinator: str, num_processes: Optional[int] = None,
@@ -187,7 +186,6 @@ def is_primary() -> bool:
 
 def _allgather(values: np.ndarray) -> np.ndarray:
   """[P, ...]: every process's `values` (int32), on every process."""
-  from jax.experimental import multihost_utils  # pylint: disable=g-import-not-at-top
   return np.asarray(multihost_utils.process_allgather(np.asarray(values, np.int32)))
 
 

@@ -2,8 +2,8 @@
 
 The trainers take it in `runs.prepare_run_dir(..., lock=True)`, before anything is written,
 and release it when they end (`released_after`). `acquire(run_dir)` creates RUN/trainer.lock
-(exclusively) with the process id, host, start time and command of this trainer; a second trainer on the same folder gets a UserError
-naming the running one and writes nothing. A lock whose process is gone (killed, crashed:
+(exclusively) with the process id, host, start time and command of this trainer; a second
+trainer on the same folder gets a UserError naming the running one and writes nothing. A lock whose process is gone (killed, crashed:
 the process id is no longer running on this host, or now belongs to a process started
 later) is stale and taken over. `release(run_dir)` removes it (training ends, or fails);
 locks still held at exit are removed then.

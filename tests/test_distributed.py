@@ -3,7 +3,6 @@ gloo collectives) train exactly like one process of two devices, for the NeRF an
 multi-style trainer; a killed pair resumes; rendering splits over processes; bad process
 settings end with one line and exit code 2."""
 
-import dataclasses
 import os
 import signal
 import socket
@@ -15,12 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from msnerf_jax.config import DataConfig
-from msnerf_jax.data.scene import load_scene
-
-from conftest import flat_params, trainer_env, untrained_nerf_run, write_blender_scene
-from test_bad_input import write_stylized
-from test_train_nerf import TINY
+from conftest import flat_params
+from test_kill import complete_checkpoints, start, trainer_inputs
 
 TESTS = os.path.dirname(os.path.abspath(__file__))
 
@@ -33,14 +28,7 @@ def free_port():
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory, request):
-  root = tmp_path_factory.mktemp("dist")
-  scene = write_blender_scene(str(root / "scene"), n_train=3, n_val=1, size=16)
-  _, data = load_scene(DataConfig(path=scene))
-  nerf_run = str(root / "nerf")
-  untrained_nerf_run(nerf_run, data, dataclasses.replace(TINY, steps=2, checkpoint_every=2))
-  stylized = write_stylized(scene, str(root / "stylized"))
-  env = trainer_env(request, root / "jax-cache", MSNERF_PROGRESS_PERCENT="0.5")
-  return {"root": root, "scene": scene, "nerf": nerf_run, "stylized": stylized, "env": env}
+  return trainer_inputs(tmp_path_factory.mktemp("dist"), request)
 
 
 def command(trainer, inputs, out, steps, every):
@@ -55,12 +43,6 @@ def command(trainer, inputs, out, steps, every):
 
 def env_with(inputs, devices):
   return dict(inputs["env"], XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
-
-
-def start(argv, env, log):
-  with open(log + ".out", "w") as out, open(log + ".err", "w") as err:
-    return subprocess.Popen([sys.executable, "-m", "msnerf_jax", *argv], stdout=out,
-                            stderr=err, env=env, start_new_session=True)
 
 
 def start_processes(argvs, env, log, timeout=60):
@@ -144,7 +126,7 @@ def test_a_killed_pair_resumes_from_the_last_checkpoint(inputs, tmp_path):
   os.killpg(procs[0].pid, signal.SIGKILL)
   for p in procs:
     p.wait()
-  saved = sorted(int(n) for n in os.listdir(os.path.join(run, "checkpoints")) if n.isdigit())
+  saved = complete_checkpoints(run)
   assert saved and saved[-1] < steps, saved  # killed mid-run
   log = str(tmp_path / "again")
   codes = wait_all(start_processes([argv, argv], env, log))

@@ -37,25 +37,31 @@ from test_train_nerf import TINY
 PROGRESS = re.compile(r"(?:nerf train|multistyle train|adain): [^\r\n]*?(\d+)/(\d+) \(")
 
 
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory, request):
-  """A scene, an (untrained) NeRF run on it, a stylized dataset, content and style folders, and
-  the environment of the trainer processes (a persistent JAX compilation cache)."""
-  root = tmp_path_factory.mktemp("kill")
+def trainer_inputs(root, request):
+  """A scene, an (untrained) NeRF run on it, a stylized dataset, and the environment of the
+  trainer processes (a persistent JAX compilation cache, a progress line every step), in
+  `root`: what the NeRF and multi-style trainers' process tests start from."""
   scene = write_blender_scene(str(root / "scene"), n_train=3, n_val=1, size=16)
   _, data = load_scene(DataConfig(path=scene))
   nerf_run = str(root / "nerf")
   untrained_nerf_run(nerf_run, data, dataclasses.replace(TINY, steps=2, checkpoint_every=2))
   stylized = write_stylized(scene, str(root / "stylized"))
+  # A progress line every step: the kills land in training steps.
+  env = trainer_env(request, root / "jax-cache", MSNERF_PROGRESS_PERCENT="0.5")
+  return {"root": root, "scene": scene, "nerf": nerf_run, "stylized": stylized, "env": env}
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory, request):
+  """trainer_inputs, plus content and style folders (for the AdaIN trainer)."""
+  root = tmp_path_factory.mktemp("kill")
   for folder in ("content", "styles"):
     (root / folder).mkdir()
   for i in range(2):
     write_style(root / "content" / f"c{i}.png", (30 + 100 * i, 160, 60), size=(24, 20))
     write_style(root / "styles" / f"s{i}.png", (200, 30 + 100 * i, 30), size=(20, 24))
-  # A progress line every step: the kills land in training steps.
-  env = trainer_env(request, root / "jax-cache", MSNERF_PROGRESS_PERCENT="0.5")
-  return {"root": root, "scene": scene, "nerf": nerf_run, "stylized": stylized,
-          "content": str(root / "content"), "styles": str(root / "styles"), "env": env}
+  return {**trainer_inputs(root, request), "content": str(root / "content"),
+          "styles": str(root / "styles")}
 
 
 def command(trainer, inputs, out, steps):

@@ -411,7 +411,8 @@ TWO_DEVICES = textwrap.dedent("""
                             jnp.asarray(scene.K), config, scene)
     fresh = lambda: ms.init_state(config, nerf_run.params)
     assert ("patches" in batch) == (config.style_weight > 0)
-    one, s1 = ms.compile_train_step(config, data.vectors, True, data_parallel(1), encoder)(fresh(), batch)
+    one, s1 = ms.compile_train_step(config, data.vectors, True, data_parallel(1), encoder)(
+        fresh(), batch)
     dp = data_parallel(2)
     two, s2 = dp.to_host(ms.compile_train_step(config, data.vectors, True, dp, encoder)(
         dp.put_state(fresh()), dp.put_batch(batch)))

@@ -126,7 +126,8 @@ TWO_DEVICES = textwrap.dedent("""
                               jnp.asarray(scene.alphas))
     assert "background" in batch
     state = nerf.init_state(config)
-    one, s1 = nerf.compile_train_step(config, True, data_parallel(1))(nerf.init_state(config), batch)
+    one, s1 = nerf.compile_train_step(config, True, data_parallel(1))(nerf.init_state(config),
+                                                                     batch)
     twos = dict()
     for mode in ("shard_map", "pmap"):
       dp = data_parallel(2, mode)
@@ -136,7 +137,8 @@ TWO_DEVICES = textwrap.dedent("""
     two, s2 = twos["shard_map"]
     # shard_map and pmap run the same per-device program and the same two-way mean; XLA
     # compiles the two separately, which may round a few values differently (1 ulp seen).
-    for a, b in zip(jax.tree_util.tree_leaves(twos["pmap"]), jax.tree_util.tree_leaves(twos["shard_map"])):
+    for a, b in zip(jax.tree_util.tree_leaves(twos["pmap"]),
+                    jax.tree_util.tree_leaves(twos["shard_map"])):
       assert np.allclose(a, b, rtol=1e-6, atol=1e-7), np.max(np.abs(a - b))
     worst = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
                 for a, b in zip(jax.tree_util.tree_leaves(one.params), jax.tree_util.tree_leaves(two.params)))

@@ -343,8 +343,8 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   try:
     summary = loop_lib.fit(state, step_fn, batches, run_dir=run_dir, steps=config.steps,
                            checkpoint_every=config.checkpoint_every,
-                           keep_checkpoints=config.keep_checkpoints, parallel=data_parallel(1), desc="adain",
-                           progress=progress, on_step=on_step, shown=("content", "style"),
+                           keep_checkpoints=config.keep_checkpoints,
+                           parallel=data_parallel(1), desc="adain", progress=progress, on_step=on_step, shown=("content", "style"),
                            history=False)
   finally:
     batches.close()
