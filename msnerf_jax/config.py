@@ -25,15 +25,34 @@ class DataConfig:
 @dataclasses.dataclass(frozen=True)
 class NerfConfig:
   """Vanilla NeRF: architecture, sampling and optimisation (defaults = reference code, Blender)."""
-  # Architecture (the `trunk` a multi-style model later freezes).
+  # Architecture (the `trunk` a multi-style model later freezes): "mlp" (the reference MLP)
+  # or "hash" (multiresolution hash encoding, models/hash_trunk.py: net_width is the width of
+  # its small MLPs; net_depth, skip_layer and pos_freqs are the MLP's alone).
+  trunk: str = "mlp"
   net_depth: int = 8
   net_width: int = 256
   skip_layer: int = 4  # the encoded input is concatenated to the output of this layer.
   pos_freqs: int = 10
   dir_freqs: int = 4
-  # Sampling.
+  hash_levels: int = 16
+  hash_features: int = 2  # features per level.
+  hash_table_size: int = 2 ** 17  # entries per level, a power of two.
+  hash_min_res: int = 16  # coarsest grid resolution.
+  hash_max_res: int = 512  # finest grid resolution.
+  # Sampling: "hierarchical" (coarse and fine networks, n_coarse + n_fine samples per ray) or
+  # "grid" (one network, samples only in the occupied cells of an occupancy grid; see
+  # msnerf_jax/occupancy.py).
+  sampler: str = "hierarchical"
   n_coarse: int = 64
   n_fine: int = 128
+  scene_box: float = 0.0  # half side of the box centred at the origin (0 = from the scene).
+  grid_resolution: int = 64  # cells per side of the occupancy grid.
+  march_steps: int = 256  # candidate samples per ray across its stretch of the box.
+  samples_per_ray: int = 32  # sample budget of a batch: this many per ray, shared.
+  grid_every: int = 16  # training steps between refreshes of the grid.
+  grid_warmup: int = 256  # steps during which every refresh visits every cell.
+  grid_decay: float = 0.95  # known cells decay by this at each refresh.
+  grid_threshold: float = 0.01  # a cell is occupied above this optical depth per step.
   lindisp: bool = False
   perturb: bool = True
   raw_noise_std: float = 0.0
@@ -61,7 +80,7 @@ class NerfConfig:
   mlp_chunk: int = 8192  # samples per MLP call inside a step (cache-sized matmuls; 0 = all).
 
 
-PRESETS = ("paper", "cpu")
+PRESETS = ("paper", "cpu", "fast")
 
 
 def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
@@ -70,6 +89,8 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
   `paper`: the reference code's defaults (128 fine samples on Blender, 64 and sigma noise
   1.0 on LLFF and on captures; white backgrounds). `cpu`: a smaller network and fewer samples tuned for a
   2-core laptop, trained against random backgrounds on Blender scenes (no white fog).
+  `fast`: the hash-grid trunk with the occupancy-grid sampler (instant-NGP's recipe, sized
+  for a CPU), random backgrounds on Blender scenes.
   Overriding net_depth without skip_layer puts the skip connection after the middle layer,
   where both presets have it.
   """
@@ -84,6 +105,21 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         precrop_steps=0 if llff else 500,
         steps=200_000,
         checkpoint_every=5000)
+  elif name == "fast":
+    config = NerfConfig(
+        trunk="hash",
+        sampler="grid",
+        net_width=64,
+        batch_rays=1024,
+        lr_init=1e-2,
+        lr_final=3e-4,
+        lr_decay_steps=6000,
+        precrop_steps=0,
+        random_background=not llff,
+        steps=3000,
+        checkpoint_every=500,
+        # One call: under a lax.map, the tables' gradient is a full-size scatter per chunk.
+        mlp_chunk=0)
   else:
     # 4x64 MLP, 16 + 32 samples: about 0.3 s per 1024-ray step on 2 cores (lego 100x100).
     config = NerfConfig(
@@ -103,6 +139,48 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         checkpoint_every=500,
         mlp_chunk=2048)
   return override(config, **overrides)
+
+
+TRUNKS = ("mlp", "hash")
+SAMPLERS = ("hierarchical", "grid")
+
+
+def check_nerf_config(config: NerfConfig) -> None:
+  """UserError naming the first setting of a NerfConfig that cannot work."""
+  def bad(name, problem):
+    raise UserError(f"--{name.replace('_', '-')} {getattr(config, name)}: {problem}")
+  if config.trunk not in TRUNKS:
+    bad("trunk", f"unknown trunk (choose from {', '.join(TRUNKS)})")
+  if config.sampler not in SAMPLERS:
+    bad("sampler", f"unknown sampler (choose from {', '.join(SAMPLERS)})")
+  if config.trunk == "hash":
+    for name in ("hash_levels", "hash_features", "hash_min_res"):
+      if getattr(config, name) < 1:
+        bad(name, "must be >= 1")
+    t = config.hash_table_size
+    if t < 2 or t & (t - 1):
+      bad("hash_table_size", "must be a power of two (>= 2)")
+    if config.hash_max_res < config.hash_min_res:
+      bad("hash_max_res", f"finest resolution below the coarsest (--hash-min-res "
+                          f"{config.hash_min_res})")
+  if config.scene_box < 0:
+    bad("scene_box", "must be >= 0 (0 = from the scene)")
+  if config.sampler == "grid":
+    for name in ("grid_resolution", "march_steps", "samples_per_ray", "grid_every"):
+      if getattr(config, name) < 1:
+        bad(name, "must be >= 1")
+    if not 0.0 < config.grid_decay <= 1.0:
+      bad("grid_decay", "must be in (0, 1]")
+    if config.grid_threshold < 0:
+      bad("grid_threshold", "must be >= 0")
+    if config.raw_noise_std > 0:
+      bad("raw_noise_std", "the occupancy-grid sampler adds no density noise (use 0)")
+    if config.distortion_weight > 0:
+      bad("distortion_weight", "not available with the occupancy-grid sampler (use 0)")
+    if config.render_chunk * config.samples_per_ray < config.march_steps:
+      bad("render_chunk", f"a rendering call's sample budget (x --samples-per-ray "
+                          f"{config.samples_per_ray}) must hold one ray's --march-steps "
+                          f"{config.march_steps}")
 
 
 def override(config: T, **overrides: Any) -> T:
@@ -152,9 +230,15 @@ def from_dict(cls: Type[T], values: Dict[str, Any], source: str = "config") -> T
   return cls(**clean)
 
 
+# Keys a difference is reported on first: what kind of model a run is.
+NAMED_FIRST = ("trunk", "sampler")
+
+
 def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Optional[str]:
-  """The first differing key between two nested dicts, as 'key: saved A, now B', or None."""
-  for key in sorted(set(saved) | set(current)):
+  """The first differing key between two nested dicts, as 'key: saved A, now B', or None
+  (at each level, the NAMED_FIRST keys in their order, then the others alphabetically)."""
+  rank = lambda k: (NAMED_FIRST.index(k) if k in NAMED_FIRST else len(NAMED_FIRST), k)
+  for key in sorted(set(saved) | set(current), key=rank):
     a, b = saved.get(key, "<missing>"), current.get(key, "<missing>")
     if isinstance(a, dict) and isinstance(b, dict):
       found = diff(a, b, f"{prefix}{key}.")

@@ -11,9 +11,10 @@ import numpy as np
 
 from jax.sharding import Mesh, PartitionSpec
 
+from msnerf_jax import occupancy
 from msnerf_jax import parallel
 from msnerf_jax import sampling
-from msnerf_jax.volume_rendering import volume_render
+from msnerf_jax.volume_rendering import volume_render, volume_render_packed
 
 # field_fn(params, points [R, S, 3], viewdirs [R, S, 3]) -> (rgb [..., R, S, 3], raw sigma [R, S])
 FieldFn = Callable[..., tuple]
@@ -29,10 +30,14 @@ def draw_randomness(key: jax.Array, n_rays: int, config, train: bool = True
   Returns:
     {"u_coarse": [R, n_coarse], "u_fine": [R, n_fine]} (stratified jitter and inverse-cdf
     uniforms) when perturbing, plus {"noise_coarse", "noise_fine"} (sigma noise, already
-    scaled by raw_noise_std) when that is > 0. Empty when not training.
+    scaled by raw_noise_std) when that is > 0. With the occupancy-grid sampler
+    (config.sampler "grid"): {"u_march": [R]} (where in its step each ray's samples sit)
+    when perturbing. Empty when not training.
   """
   if not train:
     return {}
+  if config.sampler == "grid":
+    return {"u_march": jax.random.uniform(key, (n_rays,))} if config.perturb else {}
   k_uc, k_uf, k_nc, k_nf = jax.random.split(key, 4)
   out = {}
   if config.perturb:
@@ -161,7 +166,8 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
 
   Coarse: n_coarse stratified samples through params["coarse"]. Fine: n_fine more drawn
   from the coarse weights by inverse-transform sampling; params["fine"] sees the sorted
-  union of both sets.
+  union of both sets. With config.sampler "grid" there is one level instead: params["fine"]
+  at the samples in the occupied cells of params["occupancy"] (render_rays_grid).
 
   With a `conditioning` (e.g. [M, style_dim] style vectors) the same rays render under
   each of its M entries at once: `field.codes(params, conditioning)` runs once per level,
@@ -183,12 +189,15 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
     conditioning: None, or [M, ...] per-batch conditioning.
   Returns:
     {"coarse": outputs, "fine": outputs} with volume_render's outputs and "z_vals", each
-    with a leading [M] when conditioned.
+    with a leading [M] when conditioned ({"fine"} alone with the grid sampler).
   """
   randomness = randomness or {}
   chex.assert_rank(rays["origins"], 2)
   if conditioning is not None:
     chex.assert_rank(conditioning, 2)
+  if config.sampler == "grid":
+    return {"fine": render_rays_grid(field, params, rays, config, randomness, white_background,
+                                     background, conditioning)}
   z_coarse = sampling.stratified_samples(rays["near"], rays["far"], config.n_coarse,
                                          u=randomness.get("u_coarse"), lindisp=config.lindisp)
   coarse, shared = render_level(field, params["coarse"], rays, z_coarse, conditioning, config,
@@ -200,6 +209,45 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
   fine, _ = render_level(field, params["fine"], rays, z_all, conditioning, config,
                          randomness.get("noise_fine"), white_background, background)
   return {"coarse": coarse, "fine": fine}
+
+
+def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
+                     randomness: Dict[str, jnp.ndarray], white_background: bool,
+                     background: Optional[jnp.ndarray] = None, conditioning=None,
+                     budget: Optional[int] = None) -> Dict[str, jnp.ndarray]:
+  """One level of samples in the occupied cells (occupancy.march), composited.
+
+  The sample budget is `budget` slots (static; default config.samples_per_ray x R) for the
+  whole batch: rays through empty space take none, rays through the object what they need.
+
+  Args: as render_rays; params {"fine": field params, "occupancy": [G, G, G] grid values}.
+  Returns:
+    volume_render_packed's outputs (rgb, depth, disparity, accumulation with a leading [M]
+    when conditioned; weights [B]) and "complete" [R] bool: False for a ray whose samples
+    did not all fit in the budget (render it again in a smaller batch; leave it out of a
+    loss).
+  """
+  n = rays["origins"].shape[0]
+  grid = occupancy.occupied(params["occupancy"], config.grid_threshold)
+  samples = occupancy.march(rays, grid, config, budget or n * config.samples_per_ray,
+                            randomness.get("u_march"))
+  ray = jnp.minimum(samples["ray"], n - 1)
+  points = rays["origins"][ray] + rays["directions"][ray] * samples["t"][:, None]
+  codes = None if conditioning is None else field.codes(params["fine"], conditioning)
+  rgb, sigma = field_in_chunks(field, params["fine"], points[:, None], rays["viewdirs"][ray][:, None],
+                               codes, config.mlp_chunk)
+  if sigma.ndim != 2:
+    raise ValueError("the occupancy-grid sampler needs a density shared by every conditioning")
+  rgb = rgb[..., 0, :]  # [B, 3] or [M, B, 3]
+  if conditioning is not None:
+    rgb = jnp.moveaxis(rgb, 0, 1)
+  out = volume_render_packed(rgb, jax.nn.relu(sigma[:, 0]), samples, n, white_background,
+                             background)
+  if conditioning is not None:  # the styles first, as render_level's outputs.
+    m = conditioning.shape[0]
+    out = {"rgb": jnp.moveaxis(out["rgb"], 1, 0), "weights": out["weights"],
+           **{k: jnp.broadcast_to(out[k], (m, n)) for k in ("depth", "disparity", "accumulation")}}
+  return {**out, "complete": samples["complete"]}
 
 
 def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.ndarray,
@@ -216,24 +264,41 @@ def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.
 IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
 
 
-def _image_outputs(field_fn, params, config, white_background, rays, styles=None):
-  out = render_rays(field_fn, params, rays, config, None, white_background,
-                    conditioning=styles)["fine"]
-  return {k: out[k] for k in IMAGE_OUTPUTS}
+def _image_outputs(field_fn, params, config, white_background, budget, rays, styles=None):
+  if config.sampler == "grid":
+    out = render_rays_grid(field_fn, params, rays, config, {}, white_background,
+                           conditioning=styles, budget=budget)
+  else:
+    out = render_rays(field_fn, params, rays, config, None, white_background,
+                      conditioning=styles)["fine"]
+  complete = out.get("complete", jnp.ones(rays["origins"].shape[:1], bool))
+  return {**{k: out[k] for k in IMAGE_OUTPUTS}, "complete": complete}
 
 
-_render_chunk = jax.jit(_image_outputs, static_argnums=(0, 2, 3))
+_render_chunk = jax.jit(_image_outputs, static_argnums=(0, 2, 3, 4))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 2, 3, 4))
-def _render_chunk_sharded(field_fn, params, config, white_background, mesh: Mesh, rays,
+@functools.partial(jax.jit, static_argnums=(0, 2, 3, 4, 5))
+def _render_chunk_sharded(field_fn, params, config, white_background, budget, mesh: Mesh, rays,
                           styles=None):
   """_image_outputs with the rays split over the devices of `mesh` (shard_map)."""
   split, whole = PartitionSpec(parallel.AXIS), PartitionSpec()
   ray_axis = split if styles is None else PartitionSpec(None, parallel.AXIS)
+  specs = {**{k: ray_axis for k in IMAGE_OUTPUTS}, "complete": split}
   return jax.shard_map(
-      lambda p, r, s: _image_outputs(field_fn, p, config, white_background, r, s), mesh=mesh,
-      in_specs=(whole, split, whole), out_specs=ray_axis)(params, rays, styles)
+      lambda p, r, s: _image_outputs(field_fn, p, config, white_background, budget, r, s),
+      mesh=mesh, in_specs=(whole, split, whole), out_specs=specs)(params, rays, styles)
+
+
+@functools.partial(jax.jit, static_argnums=(1,))
+def _sample_counts(grid, config, rays):
+  return occupancy.count(rays, occupancy.occupied(grid, config.grid_threshold), config)
+
+
+def sample_budget(needed: int, config) -> int:
+  """The static budget of a rendering call that needs `needed` samples: the next power of
+  two (so a few compilations serve every call), at least one ray's march_steps."""
+  return max(config.march_steps, 1 << max(0, int(needed) - 1).bit_length())
 
 
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
@@ -242,10 +307,14 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
                  ) -> Dict[str, np.ndarray]:
   """Renders rays of any leading shape (an image [H, W]) chunk by chunk, deterministically.
 
-  Each jitted call sees exactly `chunk` rays per device (the last call is padded), so peak
-  memory depends on the chunk size, not on the image size, and there is one compilation.
-  With `styles` [M, style_dim] and a style field, renders all M styles in each call (a style
-  sweep: the trunk runs once per sample for all of them, see render_rays_styles).
+  Each jitted call sees exactly `chunk` rays per device (the last call is padded with rays
+  of zero length), so peak memory depends on the chunk size, not on the image size, and
+  there is one compilation. With `styles` [M, style_dim] and a style field, renders all M
+  styles in each call (a style sweep: the trunk runs once per sample for all of them, see
+  render_rays_styles). With the occupancy-grid sampler, each call's sample budget is what
+  its rays need, rounded up to a power of two (sample_budget): counted on the host first,
+  so no slot is spent on empty space and no ray overflows (one that did would go again at
+  the front of a later call).
 
   `mesh` (parallel.AXIS; default: every device of this process, parallel.local_mesh):
   each call's rays are split over its devices (shard_map), `chunk` on each; a mesh of
@@ -259,6 +328,7 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   """
   chunk = chunk or config.render_chunk
   mesh = mesh or parallel.local_mesh()
+  grid = np.asarray(params["occupancy"]) if config.sampler == "grid" else None
   if mesh.size > 1:
     params = parallel.replicated(params, mesh)
     styles = None if styles is None else parallel.replicated(styles, mesh)
@@ -267,24 +337,36 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
   n = flat["origins"].shape[0]
   axis = 0 if styles is None else 1  # where the ray axis of the outputs is.
-  outputs = {k: [] for k in IMAGE_OUTPUTS}
-  for start in range(0, n, per_call):
-    piece = {k: v[start:start + per_call] for k, v in flat.items()}
-    size = piece["origins"].shape[0]
-    if size < per_call:  # pad with copies of the first ray: same shapes, one compilation.
-      piece = {k: np.concatenate([v, np.repeat(v[:1], per_call - size, 0)])
-               for k, v in piece.items()}
+  # A padding ray of zero length (far = near): it takes no samples from anyone's budget.
+  blank = {k: v[:1] for k, v in flat.items()}
+  blank["far"] = blank["near"]
+  outputs: Dict[str, np.ndarray] = {}
+  pending = np.arange(n)
+  while pending.size:
+    take, pending = pending[:per_call], pending[per_call:]
+    size = take.size
+    piece = {k: np.concatenate([v[take], np.repeat(blank[k], per_call - size, 0)])
+             for k, v in flat.items()}
+    budget = None
+    if grid is not None:  # exactly what the call needs, on its busiest device.
+      counts = np.asarray(_sample_counts(grid, config, piece)).reshape(mesh.size, chunk)
+      budget = sample_budget(counts.sum(1).max(), config)
     if mesh.size == 1:
-      out = _render_chunk(field_fn, params, config, white_background, piece, styles)
+      out = _render_chunk(field_fn, params, config, white_background, budget, piece, styles)
     else:
       out = parallel.gather(_render_chunk_sharded(field_fn, params, config, white_background,
-                                                  mesh, parallel.split_rows(piece, mesh),
-                                                  styles))
+                                                  budget, mesh,
+                                                  parallel.split_rows(piece, mesh), styles))
+    done = np.asarray(out["complete"])[:size]
     for k in IMAGE_OUTPUTS:
-      outputs[k].append(np.take(np.asarray(out[k]), np.arange(size), axis=axis))
+      value = np.take(np.asarray(out[k]), np.arange(size), axis=axis)
+      if k not in outputs:
+        outputs[k] = np.zeros((*value.shape[:axis], n, *value.shape[axis + 1:]), value.dtype)
+      index = (slice(None),) * axis + (take[done],)
+      outputs[k][index] = np.take(value, np.nonzero(done)[0], axis=axis)
+    pending = np.concatenate([take[~done], pending])
   result = {}
-  for k, v in outputs.items():
-    joined = np.concatenate(v, axis=axis)
+  for k, joined in outputs.items():
     lead = joined.shape[:axis]
     result[k] = joined.reshape(*lead, *shape, *joined.shape[axis + 1:])
   return result

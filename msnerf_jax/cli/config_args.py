@@ -21,6 +21,23 @@ HELP = {
     "keep_checkpoints": "checkpoints kept in RUN/checkpoints",
     "render_chunk": "rays per jitted rendering call (bounds memory)",
     "mlp_chunk": "samples per MLP call inside a step (0 = all at once)",
+    "trunk": "the trunk: mlp (the reference MLP) or hash (multiresolution hash encoding)",
+    "hash_levels": "hash trunk: resolution levels",
+    "hash_features": "hash trunk: features per level",
+    "hash_table_size": "hash trunk: table entries per level (a power of two)",
+    "hash_min_res": "hash trunk: coarsest grid resolution",
+    "hash_max_res": "hash trunk: finest grid resolution",
+    "sampler": "where to sample: hierarchical (coarse + fine networks) or grid (one network, "
+               "only in the occupied cells of an occupancy grid)",
+    "scene_box": "half side of the scene's box around the origin, for the hash trunk and the "
+                 "grid (0 = Blender 1.5, NDC 1, captures: the farthest camera)",
+    "grid_resolution": "grid sampler: cells per side of the occupancy grid",
+    "march_steps": "grid sampler: candidate samples per ray across the box",
+    "samples_per_ray": "grid sampler: sample budget per ray (shared by a batch's rays)",
+    "grid_every": "grid sampler: steps between refreshes of the grid",
+    "grid_warmup": "grid sampler: steps during which a refresh visits every cell",
+    "grid_decay": "grid sampler: decay of a cell's density estimate at each refresh",
+    "grid_threshold": "grid sampler: optical depth per step above which a cell is occupied",
     # MultistyleConfig
     "style_dim": "length of the style vectors",
     "style_hidden": "width of the style MLP's first hidden layer",

@@ -36,7 +36,9 @@ def register(commands, formatter):
   p.add_argument("--data", required=True, help="scene folder (Blender or LLFF, auto-detected)")
   p.add_argument("--out", required=True, help="run folder for config, checkpoints and logs")
   p.add_argument("--preset", default="cpu", choices=config_lib.PRESETS,
-                 help="paper = reference architecture and defaults; cpu = small and fast")
+                 help="paper = reference architecture and defaults; cpu = small MLP for a "
+                      "laptop; fast = hash-grid trunk and occupancy-grid sampling "
+                      "(instant-NGP's recipe)")
   p.add_argument("--downscale", type=int, default=0,
                  help="image downscale factor (0 = Blender 1, LLFF 8)")
   p.add_argument("--steps", type=int, default=None, help="training steps (default: preset's)")

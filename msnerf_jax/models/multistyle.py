@@ -13,14 +13,15 @@ once per style (`codes`), including the style half of each head's first layer: a
 """
 
 import dataclasses
-from typing import Any, Dict, Optional, Sequence
+from typing import Any, Dict, Optional, Sequence, Union
 
 import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax.encoding import encoded_size
+from msnerf_jax import occupancy
+from msnerf_jax.models.hash_trunk import HashTrunk
 from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
 
 
@@ -76,7 +77,7 @@ class MultiStyleMLP(nn.Module):
 
   Params: {"trunk": <the NeRF's trunk>, "style_rgb": ..., "rgb_hidden": ..., "rgb_out": ...}.
   """
-  trunk: NerfTrunk
+  trunk: Union[NerfTrunk, HashTrunk]
   density_aware: bool = False
   style_dim: int = 1024
   style_hidden: Sequence[int] = (1024, 512)
@@ -91,8 +92,7 @@ class MultiStyleMLP(nn.Module):
     self.rgb_extra = [nn.Dense(w // 2, name=f"rgb_extra_{i}") for i in range(self.rgb_extra_layers)]
     self.rgb_out = nn.Dense(3)
     if self.density_aware:
-      hidden_dim = w + (encoded_size(3, self.trunk.pos_freqs)
-                        if self.trunk.skip_layer == self.trunk.depth - 1 else 0)
+      hidden_dim = self.trunk.hidden_width
       self.style_density = StyleMLP((*self.style_hidden, w), self.normalize_styles)
       self.density_hidden = ConcatDense(w, hidden_dim, w)
       self.density_extra = [nn.Dense(w, name=f"density_extra_{i}")
@@ -165,21 +165,28 @@ class MultistyleField:
 
 def init_multistyle_params(config, key: jax.Array,
                            nerf_params: Optional[Dict] = None) -> Dict[str, Dict]:
-  """Params {"coarse", "fine"} of a multi-style model; with `nerf_params` (a NeRF run's
-  {"coarse", "fine"}), each `trunk` is that run's trunk, copied leaf for leaf, and a
-  density-aware head starts out reproducing the trunk's density (see start_from_density)."""
+  """Params {"coarse", "fine"} of a multi-style model ({"fine", "occupancy"} on a NeRF with
+  the grid sampler); with `nerf_params` (a NeRF run's params), each `trunk` is that run's
+  trunk, copied leaf for leaf (and its occupancy grid), and a density-aware head starts out
+  reproducing the trunk's density (see start_from_density)."""
   model = multistyle_mlp(config)
   x = jnp.zeros((1, 1, 3), jnp.float32)
   styles = jnp.zeros((1, config.style_dim), jnp.float32)
   init = lambda k: model.init(k, x, x, styles, method=lambda m, p, d, s: m(p, d, m.codes(s)))
   params = {}
+  grid = config.nerf.sampler == "grid"
   for net, k in zip(("coarse", "fine"), jax.random.split(key)):
+    if grid and net == "coarse":
+      continue
     params[net] = dict(init(k)["params"])
     if nerf_params is not None:
       # A copy: training donates its state, and must not delete the caller's arrays.
       params[net]["trunk"] = jax.tree_util.tree_map(jnp.array, nerf_params[net]["trunk"])
       if config.density_aware:
         params[net] = start_from_density(params[net])
+  if grid:
+    params["occupancy"] = (occupancy.init_grid(config.nerf.grid_resolution)
+                           if nerf_params is None else jnp.array(nerf_params["occupancy"]))
   return params
 
 

@@ -2,40 +2,16 @@
 `NerfField`, the MLP as the field the renderer (msnerf_jax.render) draws."""
 
 import dataclasses
-from typing import Any, Dict, Sequence, Tuple
+from typing import Any, Dict, Tuple, Union
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax.encoding import positional_encoding
-
-
-class ConcatInputDense(nn.Module):
-  """nn.Dense over the concatenation of `parts`, without building the concatenation.
-
-  Same params as nn.Dense(features) applied to jnp.concatenate(parts, -1) (`kernel`
-  [sum of widths, features], `bias` [features], same initializers and random numbers), so
-  checkpoints are interchangeable; computed as a sum of one matmul per part, which spares
-  copying the wide activations (and their gradients) on every call. Leading axes are
-  flattened around each matmul: with 2-D operands XLA's CPU backend computes the weight
-  gradient without first transposing the batched activations (a ~20% faster training step).
-  """
-  features: int
-
-  @nn.compact
-  def __call__(self, parts: Sequence[jnp.ndarray]) -> jnp.ndarray:
-    widths = [p.shape[-1] for p in parts]
-    kernel = self.param("kernel", nn.initializers.lecun_normal(), (sum(widths), self.features),
-                        jnp.float32)
-    bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), jnp.float32)
-    lead = parts[0].shape[:-1]
-    out, start = None, 0
-    for part, width in zip(parts, widths):
-      y = jnp.matmul(part.reshape(-1, width), kernel[start:start + width])
-      out = y if out is None else out + y
-      start += width
-    return (out + bias).reshape(*lead, self.features)
+from msnerf_jax import occupancy
+from msnerf_jax.encoding import encoded_size, positional_encoding
+from msnerf_jax.models.hash_trunk import HashTrunk, hash_trunk
+from msnerf_jax.models.layers import ConcatInputDense
 
 
 class NerfTrunk(nn.Module):
@@ -50,6 +26,13 @@ class NerfTrunk(nn.Module):
   skip_layer: int = 4
   pos_freqs: int = 10
   dir_freqs: int = 4
+
+  @property
+  def hidden_width(self) -> int:
+    """Width of `hidden`, what a density-aware head reads (the encoded input is part of it
+    when the skip connection is the last layer's)."""
+    return self.width + (encoded_size(3, self.pos_freqs) if self.skip_layer == self.depth - 1
+                         else 0)
 
   @nn.compact
   def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray) -> Dict[str, jnp.ndarray]:
@@ -78,7 +61,7 @@ class NerfMLP(nn.Module):
 
   Params: {"trunk": {...}, "rgb": {...}} (the submodule takes its attribute's name).
   """
-  trunk: NerfTrunk
+  trunk: Union[NerfTrunk, HashTrunk]
 
   @nn.compact
   def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray
@@ -89,8 +72,11 @@ class NerfMLP(nn.Module):
     return rgb, out["sigma"]
 
 
-def nerf_trunk(config) -> NerfTrunk:
-  """The trunk of a NerfConfig (what a multi-style model freezes)."""
+def nerf_trunk(config) -> Union[NerfTrunk, HashTrunk]:
+  """The trunk of a NerfConfig (what a multi-style model freezes): the MLP, or the hash grid
+  with trunk = "hash"."""
+  if config.trunk == "hash":
+    return hash_trunk(config)
   return NerfTrunk(config.net_depth, config.net_width, config.skip_layer, config.pos_freqs,
                    config.dir_freqs)
 
@@ -110,12 +96,16 @@ class NerfField:
 
 
 def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:
-  """Fresh params of a run: {"coarse": {"trunk", "rgb"}, "fine": {"trunk", "rgb"}}."""
+  """Fresh params of a run: {"coarse": {"trunk", "rgb"}, "fine": {"trunk", "rgb"}}; with the
+  occupancy-grid sampler {"fine": {"trunk", "rgb"}, "occupancy": [G, G, G]} (every cell
+  unknown, see msnerf_jax.occupancy)."""
   model = nerf_mlp(config)
   k_coarse, k_fine = jax.random.split(key)
   x = jnp.zeros((1, 3), jnp.float32)
-  return {"coarse": model.init(k_coarse, x, x)["params"],
-          "fine": model.init(k_fine, x, x)["params"]}
+  fine = model.init(k_fine, x, x)["params"]
+  if config.sampler == "grid":
+    return {"fine": fine, "occupancy": occupancy.init_grid(config.grid_resolution)}
+  return {"coarse": model.init(k_coarse, x, x)["params"], "fine": fine}
 
 
 def mlp_flops_per_sample(config) -> int:

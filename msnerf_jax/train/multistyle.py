@@ -31,20 +31,28 @@ from msnerf_jax.train import state as state_lib
 
 KIND = "multistyle"
 FROZEN = "trunk"
+GRID = "occupancy"
 
 
 # ----------------------------------------------------------------------------- frozen trunk
 
 
 def split_frozen(params) -> Tuple[Dict, Dict]:
-  """(trainable, frozen): params {"coarse", "fine"} split into the heads and the `trunk`s."""
-  trainable = {net: {k: v for k, v in p.items() if k != FROZEN} for net, p in params.items()}
-  frozen = {net: {FROZEN: p[FROZEN]} for net, p in params.items()}
+  """(trainable, frozen): params {"coarse", "fine"} split into the heads and the `trunk`s;
+  an occupancy grid (params["occupancy"], the grid sampler's) is frozen whole."""
+  nets = {net: p for net, p in params.items() if net != GRID}
+  trainable = {net: {k: v for k, v in p.items() if k != FROZEN} for net, p in nets.items()}
+  frozen = {net: {FROZEN: p[FROZEN]} for net, p in nets.items()}
+  if GRID in params:
+    frozen[GRID] = params[GRID]
   return trainable, frozen
 
 
 def merge(trainable, frozen) -> Dict:
-  return {net: {**trainable[net], **frozen[net]} for net in trainable}
+  merged = {net: {**trainable[net], **frozen[net]} for net in trainable}
+  if GRID in frozen:
+    merged[GRID] = frozen[GRID]
+  return merged
 
 
 def frozen_mask(params):
@@ -96,7 +104,8 @@ def patch_style_loss(field: MultistyleField, params, patches, styles, encoder,
 
 def loss_fn(trainable, frozen, batch, styles, encoder, config: MultistyleConfig,
             white_background: bool):
-  """MSE of the coarse and fine renders in every style against the stylized targets, plus
+  """MSE of the coarse and fine renders (the grid sampler: its one level, over the rays
+  whose samples fit) in every style against the stylized targets, plus
   config.style_weight x patch_style_loss when that weight is > 0.
 
   batch["rgb"]: [B, M, 3] uint8, pixel b of the training view in each of the M styles.
@@ -107,10 +116,11 @@ def loss_fn(trainable, frozen, batch, styles, encoder, config: MultistyleConfig,
   out = render_lib.render_rays_styles(field, params, batch["rays"], styles, config.nerf,
                                       batch["random"], white_background)
   target = jnp.swapaxes(batch["rgb"], 0, 1).astype(jnp.float32) / 255.0  # [M, B, 3]
-  mse_coarse = jnp.mean((out["coarse"]["rgb"] - target) ** 2)
-  mse_fine = jnp.mean((out["fine"]["rgb"] - target) ** 2)
-  loss = mse_coarse + mse_fine
-  stats = {"mse_coarse": mse_coarse, "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  complete = out["fine"].get("complete")
+  mse = {level: nerf_lib.masked_mse(o["rgb"], target, complete) for level, o in out.items()}
+  loss = sum(mse.values())
+  stats = {**{f"mse_{level}": v for level, v in mse.items()},
+           "psnr": metrics.mse_to_psnr(mse["fine"])}
   if config.style_weight > 0:
     stats["style"] = patch_style_loss(field, params, batch["patches"], styles, encoder, config,
                                       white_background)
@@ -234,6 +244,10 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   """
   nerf_run, scene, data = load_nerf_run(nerf_run_dir)
   config = dataclasses.replace(config, nerf=nerf_run.config)
+  if config.density_aware and config.nerf.sampler == "grid":
+    raise UserError(f"{nerf_run_dir}: a density-aware model needs a NeRF run with the "
+                    "hierarchical sampler (this one samples from its occupancy grid, which "
+                    "cannot follow a density per style)")
   check_compatible(stylized, scene, nerf_run_dir)
   devices = data_parallel(n_devices, parallel)
   nerf_lib.check_batch_splits(config.batch_rays, devices)

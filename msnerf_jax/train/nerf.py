@@ -1,15 +1,18 @@
 """Training a vanilla NeRF, top to bottom: batch -> coarse/fine render -> MSE -> Adam."""
 
+import dataclasses
 import functools
 from typing import Any, Callable, Dict, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from msnerf_jax import runs
 from msnerf_jax import config as config_lib
 from msnerf_jax import distributed
 from msnerf_jax import metrics
+from msnerf_jax import occupancy
 from msnerf_jax import rays as rays_lib
 from msnerf_jax import regularizers
 from msnerf_jax import render as render_lib
@@ -83,8 +86,20 @@ def pixel_batch(key, images, c2w, K, idx, rows, cols, config: NerfConfig, ndc: b
 # ----------------------------------------------------------------------------- the step
 
 
+def masked_mse(rgb, target, mask=None):
+  """Mean squared error of colours [..., R, 3]; with mask [R] bool, over the masked rays
+  only."""
+  if mask is None:
+    return jnp.mean((rgb - target) ** 2)
+  err = jnp.sum((rgb - target) ** 2, -1)  # [..., R]
+  per_ray = err.size // mask.size
+  return (jnp.sum(jnp.where(mask, err, 0.0))
+          / (3.0 * per_ray * jnp.maximum(jnp.sum(mask), 1)))
+
+
 def loss_fn(params, batch, config: NerfConfig, white_background: bool):
-  """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6).
+  """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6); with
+  the occupancy-grid sampler, of its one level over the rays whose samples fit the budget.
 
   A batch with "background" [B, 3] is rendered over those colours (random backgrounds).
   With config.distortion_weight > 0, adds that weight times the mean distortion loss
@@ -92,10 +107,13 @@ def loss_fn(params, batch, config: NerfConfig, white_background: bool):
   """
   out = render_lib.render_rays(NerfField(config), params, batch["rays"], config,
                                batch["random"], white_background, batch.get("background"))
-  mse_coarse = jnp.mean((out["coarse"]["rgb"] - batch["rgb"]) ** 2)
-  mse_fine = jnp.mean((out["fine"]["rgb"] - batch["rgb"]) ** 2)
-  loss = mse_coarse + mse_fine
-  stats = {"mse_coarse": mse_coarse, "mse_fine": mse_fine, "psnr": metrics.mse_to_psnr(mse_fine)}
+  complete = out["fine"].get("complete")
+  mse = {level: masked_mse(o["rgb"], batch["rgb"], complete) for level, o in out.items()}
+  loss = sum(mse.values())
+  stats = {**{f"mse_{level}": v for level, v in mse.items()},
+           "psnr": metrics.mse_to_psnr(mse["fine"])}
+  if complete is not None:
+    stats["complete"] = jnp.mean(complete.astype(jnp.float32))
   if config.distortion_weight > 0:
     rays = batch["rays"]
     stats["distortion"] = sum(
@@ -105,9 +123,36 @@ def loss_fn(params, batch, config: NerfConfig, white_background: bool):
   return loss, {"loss": loss, **stats}
 
 
+REFRESH_CHUNK = 65536  # points per field call of a grid refresh (forward only).
+
+
+def refresh_grid(params, step, config: NerfConfig):
+  """params with params["occupancy"] refreshed from the fine field's density when `step`
+  (traced) is a multiple of config.grid_every (every cell during config.grid_warmup steps,
+  a random quarter after it); the randomness is a pure function of (seed, step), so every
+  device and process computes the same grid."""
+  field = NerfField(config)
+
+  def density(points):
+    _, sigma = render_lib.apply_in_chunks(field, params["fine"], points[:, None],
+                                          jnp.zeros_like(points)[:, None], REFRESH_CHUNK)
+    return jax.nn.relu(sigma[:, 0])
+
+  key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(config.seed), step), 7)
+  grid = params["occupancy"]
+  refresh = lambda all_cells: lambda: occupancy.update_grid(grid, density, key, config,
+                                                            all_cells)
+  new = jax.lax.cond(step % config.grid_every == 0,
+                     lambda: jax.lax.cond(step < config.grid_warmup, refresh(True),
+                                          refresh(False)),
+                     lambda: grid)
+  return {**params, "occupancy": new}
+
+
 def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
                white_background: bool, axis_name: Optional[str] = None):
   """One optimizer step on a batch; with an `axis_name`, gradients are averaged across it.
+  With the occupancy-grid sampler, the grid is then refreshed (refresh_grid).
 
   The same function runs under jax.jit (axis_name=None), or per device under jax.shard_map
   or jax.pmap (axis_name="batch"): see msnerf_jax.parallel.
@@ -116,7 +161,10 @@ def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
   if axis_name is not None:
     grads = jax.lax.pmean(grads, axis_name)
     stats = jax.lax.pmean(stats, axis_name)
-  return state.apply_gradients(grads=grads), stats
+  new = state.apply_gradients(grads=grads)
+  if "occupancy" in new.params:
+    new = new.replace(params=refresh_grid(new.params, state.step, config))
+  return new, stats
 
 
 @functools.lru_cache(maxsize=8)
@@ -128,14 +176,42 @@ def compile_train_step(config: NerfConfig, white_background: bool, parallel: Dat
                                             white_background=white_background))
 
 
+def not_trained(params):
+  """The optimizer's freeze mask of a NeRF: the occupancy grid (rewritten by the step, not
+  by gradients) when there is one."""
+  return {k: jax.tree_util.tree_map(lambda _: k == "occupancy", v) for k, v in params.items()}
+
+
 def init_state(config: NerfConfig) -> state_lib.TrainState:
   params = init_nerf_params(config, jax.random.PRNGKey(config.seed))
-  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
-                                               config.lr_decay_steps))
-  return state_lib.create_state(params, tx)
+  schedule = state_lib.exponential_lr(config.lr_init, config.lr_final, config.lr_decay_steps)
+  if config.sampler == "grid":  # instant-NGP's Adam: beta2 0.99, eps 1e-15.
+    return state_lib.create_state(params, state_lib.adam(schedule, not_trained, b2=0.99,
+                                                         eps=1e-15))
+  return state_lib.create_state(params, state_lib.adam(schedule))
 
 
 # ----------------------------------------------------------------------------- the loop
+
+
+def scene_box(scene: Scene) -> float:
+  """Half side of a box centred at the origin that holds the scene: NDC scenes 1 (the NDC
+  cube), Blender scenes 1.5 (instant-NGP's box of the synthetic objects), other captures the
+  farthest camera's distance from the origin (the cameras surround what they film)."""
+  if scene.ndc:
+    return 1.0
+  if scene.format == "blender":
+    return 1.5
+  return float(np.max(np.linalg.norm(np.asarray(scene.c2w)[:, :3, 3], axis=-1)))
+
+
+def resolve_config(config: NerfConfig, scene: Scene) -> NerfConfig:
+  """The config with what depends on the scene filled in (scene_box 0 -> scene_box(scene)),
+  checked (config.check_nerf_config)."""
+  if config.scene_box == 0:
+    config = dataclasses.replace(config, scene_box=scene_box(scene))
+  config_lib.check_nerf_config(config)
+  return config
 
 
 def check_batch_splits(batch_rays: int, parallel: DataParallel) -> None:
@@ -166,6 +242,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   parallel.data_parallel. After msnerf_jax.distributed.initialize, every process calls
   this with the same arguments and the step spans all their devices; process 0 writes.
   """
+  config = resolve_config(config, scene)
   devices = data_parallel(n_devices, parallel)
   check_batch_splits(config.batch_rays, devices)
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data_config)}

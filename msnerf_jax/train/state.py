@@ -16,18 +16,20 @@ def exponential_lr(lr_init: float, lr_final: float, decay_steps: int) -> optax.S
                                  decay_rate=lr_final / lr_init)
 
 
-def adam(schedule, frozen: Optional[Callable[[Any], Any]] = None) -> optax.GradientTransformation:
-  """Adam; leaves for which the `frozen(params)` mask is True get no update and no state.
+def adam(schedule, frozen: Optional[Callable[[Any], Any]] = None,
+         **adam_args: float) -> optax.GradientTransformation:
+  """Adam (optax.adam with `adam_args`, e.g. b2, eps); leaves for which the `frozen(params)`
+  mask is True get no update and no state.
 
   `frozen` maps a params pytree to a pytree of booleans (True = frozen). Frozen leaves go
   through optax.set_to_zero(), which keeps no optimizer state for them.
   """
   if frozen is None:
-    return optax.adam(schedule)
+    return optax.adam(schedule, **adam_args)
   def labels(params):
     return jax.tree_util.tree_map(lambda f: "frozen" if f else "train", frozen(params))
-  return optax.multi_transform({"train": optax.adam(schedule), "frozen": optax.set_to_zero()},
-                               labels)
+  return optax.multi_transform({"train": optax.adam(schedule, **adam_args),
+                                "frozen": optax.set_to_zero()}, labels)
 
 
 def create_state(params, tx: optax.GradientTransformation) -> TrainState:
