@@ -48,6 +48,7 @@ class NerfConfig:
   scene_box: float = 0.0  # half side of the box centred at the origin (0 = from the scene).
   grid_resolution: int = 64  # cells per side of the occupancy grid.
   march_steps: int = 256  # candidate samples per ray across its stretch of the box.
+  march_segments: int = 2  # rendering: rays stop after a segment once they are opaque.
   samples_per_ray: int = 32  # sample budget of a batch: this many per ray, shared.
   grid_every: int = 16  # training steps between refreshes of the grid.
   grid_warmup: int = 256  # steps during which every refresh visits every cell.
@@ -106,17 +107,25 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         steps=200_000,
         checkpoint_every=5000)
   elif name == "fast":
+    # Hash grid (16 levels x 2 features, 2^16 entries, 16 -> 256) and occupancy grid (64^3,
+    # 128 steps across the box, a budget of 24 samples a ray): about 0.14 s per 1024-ray
+    # step on 2 cores (lego 100x100), instant-NGP's learning rate and Adam.
     config = NerfConfig(
         trunk="hash",
         sampler="grid",
         net_width=64,
+        hash_table_size=2 ** 16,
+        hash_max_res=256,
+        march_steps=128,
+        # Forward-facing scenes fill the view: their rays need more of their 128 steps.
+        samples_per_ray=64 if llff else 24,
         batch_rays=1024,
         lr_init=1e-2,
         lr_final=3e-4,
-        lr_decay_steps=6000,
+        lr_decay_steps=6000,  # measured: 27.0 dB at step 3500 on lego, 26.6 with 4000
         precrop_steps=0,
         random_background=not llff,
-        steps=3000,
+        steps=4000,
         checkpoint_every=500,
         # One call: under a lax.map, the tables' gradient is a full-size scatter per chunk.
         mlp_chunk=0)
@@ -166,7 +175,8 @@ def check_nerf_config(config: NerfConfig) -> None:
   if config.scene_box < 0:
     bad("scene_box", "must be >= 0 (0 = from the scene)")
   if config.sampler == "grid":
-    for name in ("grid_resolution", "march_steps", "samples_per_ray", "grid_every"):
+    for name in ("grid_resolution", "march_steps", "march_segments", "samples_per_ray",
+                 "grid_every"):
       if getattr(config, name) < 1:
         bad(name, "must be >= 1")
     if not 0.0 < config.grid_decay <= 1.0:
@@ -177,10 +187,6 @@ def check_nerf_config(config: NerfConfig) -> None:
       bad("raw_noise_std", "the occupancy-grid sampler adds no density noise (use 0)")
     if config.distortion_weight > 0:
       bad("distortion_weight", "not available with the occupancy-grid sampler (use 0)")
-    if config.render_chunk * config.samples_per_ray < config.march_steps:
-      bad("render_chunk", f"a rendering call's sample budget (x --samples-per-ray "
-                          f"{config.samples_per_ray}) must hold one ray's --march-steps "
-                          f"{config.march_steps}")
 
 
 def override(config: T, **overrides: Any) -> T:

@@ -98,27 +98,40 @@ def box_interval(rays: Dict[str, jnp.ndarray], bound: float):
   return jnp.maximum(t_in, rays["near"]), jnp.minimum(t_out, rays["far"])
 
 
+def segment_length(config) -> int:
+  """Steps in one of config.march_segments segments (the last may reach past the end)."""
+  return -(-config.march_steps // config.march_segments)
+
+
 def candidates(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config,
-               u: Optional[jnp.ndarray] = None):
-  """(t_start [R], step dt [R], offset [R], keep [R, N] bool) of march's candidates: sample k
-  of a ray sits at t_start + (k + offset) dt and is kept when its cell is occupied."""
+               u: Optional[jnp.ndarray] = None, first: Optional[jnp.ndarray] = None):
+  """(t_start [R], dt [R], offset [R], steps [S], keep [R, S] bool) of march's candidates:
+  step k of a ray has its sample at t_start + (k + offset) dt, kept when its cell is
+  occupied. S = config.march_steps, or with `first` (an int, may be traced) the
+  segment_length(config) steps from `first` on. A ray with rays["alive"] False keeps none."""
   n_rays, n_steps = rays["origins"].shape[0], config.march_steps
   t_start, t_end = box_interval(rays, config.scene_box)
   dt = jnp.maximum(t_end - t_start, 0.0) / n_steps  # [R]; 0 for a ray that misses.
   offset = jnp.full((n_rays,), 0.5) if u is None else u
-  t = t_start[:, None] + (jnp.arange(n_steps) + offset[:, None]) * dt[:, None]  # [R, N]
+  steps = (jnp.arange(n_steps) if first is None else
+           first + jnp.arange(segment_length(config)))
+  t = t_start[:, None] + (steps + offset[:, None]) * dt[:, None]  # [R, S]
   points = rays["origins"][:, None, :] + rays["directions"][:, None, :] * t[..., None]
-  keep = lookup(occupancy, points, config.scene_box) & (dt > 0)[:, None]
-  return t_start, dt, offset, keep
+  keep = lookup(occupancy, points, config.scene_box) & (dt > 0)[:, None] & (steps < n_steps)
+  if "alive" in rays:
+    keep = keep & rays["alive"][:, None]
+  return t_start, dt, offset, steps, keep
 
 
-def count(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config) -> jnp.ndarray:
+def count(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config,
+          first: Optional[jnp.ndarray] = None) -> jnp.ndarray:
   """[R] int32: how many samples march keeps on each ray (without jitter)."""
-  return jnp.sum(candidates(rays, occupancy, config)[3], -1, dtype=jnp.int32)
+  return jnp.sum(candidates(rays, occupancy, config, None, first)[4], -1, dtype=jnp.int32)
 
 
 def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: int,
-          u: Optional[jnp.ndarray] = None) -> Dict[str, jnp.ndarray]:
+          u: Optional[jnp.ndarray] = None, first: Optional[jnp.ndarray] = None
+          ) -> Dict[str, jnp.ndarray]:
   """Packed samples of a batch of rays in the occupied cells.
 
   Each ray's stretch inside the box is cut into config.march_steps even steps; a step's
@@ -127,23 +140,26 @@ def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: 
   each ray, fill the first entries of `budget` slots.
 
   Args:
-    rays: ray_bundle [R].
+    rays: ray_bundle [R], optionally with "alive" [R] bool (rays that may take samples).
     occupancy: [G, G, G] bool (occupied).
     budget: number of sample slots B (static).
     u: [R] jitter in [0, 1) (training), or None.
+    first: None, or the first step of a segment (candidates): only that segment's steps
+      (rendering marches in segments and stops rays whose transmittance is spent).
   Returns:
     {"ray": [B] int32 ray of each slot (R for an empty slot), "t": [B] sample depths,
     "delta": [B] step lengths in world units, "valid": [B] bool, "complete": [R] bool (all of
     the ray's kept samples fit in the budget)}.
   """
   chex.assert_rank(rays["origins"], 2)
-  n_rays, n_steps = rays["origins"].shape[0], config.march_steps
-  t_start, dt, offset, keep = candidates(rays, occupancy, config, u)
+  n_rays = rays["origins"].shape[0]
+  t_start, dt, offset, steps, keep = candidates(rays, occupancy, config, u, first)
+  n_steps = steps.shape[0]
   flat = jnp.nonzero(keep.reshape(-1), size=budget, fill_value=n_rays * n_steps)[0]
   valid = flat < n_rays * n_steps
   ray = jnp.where(valid, flat // n_steps, n_rays).astype(jnp.int32)
   safe_ray = jnp.minimum(ray, n_rays - 1)
-  step = (flat % n_steps).astype(jnp.float32)
+  step = steps[flat % n_steps].astype(jnp.float32)
   norm = jnp.linalg.norm(rays["directions"], axis=-1)
   return {"ray": ray,
           "t": jnp.where(valid, t_start[safe_ray] + (step + offset[safe_ray]) * dt[safe_ray], 0.0),

@@ -214,13 +214,16 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
 def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
                      randomness: Dict[str, jnp.ndarray], white_background: bool,
                      background: Optional[jnp.ndarray] = None, conditioning=None,
-                     budget: Optional[int] = None) -> Dict[str, jnp.ndarray]:
+                     budget: Optional[int] = None, first: Optional[jnp.ndarray] = None
+                     ) -> Dict[str, jnp.ndarray]:
   """One level of samples in the occupied cells (occupancy.march), composited.
 
   The sample budget is `budget` slots (static; default config.samples_per_ray x R) for the
   whole batch: rays through empty space take none, rays through the object what they need.
 
-  Args: as render_rays; params {"fine": field params, "occupancy": [G, G, G] grid values}.
+  Args: as render_rays; params {"fine": field params, "occupancy": [G, G, G] grid values};
+    rays may carry "alive" [R] bool, and `first` limits the steps to one segment
+    (occupancy.march).
   Returns:
     volume_render_packed's outputs (rgb, depth, disparity, accumulation with a leading [M]
     when conditioned; weights [B]) and "complete" [R] bool: False for a ray whose samples
@@ -230,7 +233,7 @@ def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
   n = rays["origins"].shape[0]
   grid = occupancy.occupied(params["occupancy"], config.grid_threshold)
   samples = occupancy.march(rays, grid, config, budget or n * config.samples_per_ray,
-                            randomness.get("u_march"))
+                            randomness.get("u_march"), first)
   ray = jnp.minimum(samples["ray"], n - 1)
   points = rays["origins"][ray] + rays["directions"][ray] * samples["t"][:, None]
   codes = None if conditioning is None else field.codes(params["fine"], conditioning)
@@ -264,10 +267,11 @@ def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.
 IMAGE_OUTPUTS = ("rgb", "depth", "disparity", "accumulation")
 
 
-def _image_outputs(field_fn, params, config, white_background, budget, rays, styles=None):
+def _image_outputs(field_fn, params, config, white_background, budget, rays, styles=None,
+                   first=None):
   if config.sampler == "grid":
     out = render_rays_grid(field_fn, params, rays, config, {}, white_background,
-                           conditioning=styles, budget=budget)
+                           conditioning=styles, budget=budget, first=first)
   else:
     out = render_rays(field_fn, params, rays, config, None, white_background,
                       conditioning=styles)["fine"]
@@ -280,25 +284,75 @@ _render_chunk = jax.jit(_image_outputs, static_argnums=(0, 2, 3, 4))
 
 @functools.partial(jax.jit, static_argnums=(0, 2, 3, 4, 5))
 def _render_chunk_sharded(field_fn, params, config, white_background, budget, mesh: Mesh, rays,
-                          styles=None):
+                          styles=None, first=None):
   """_image_outputs with the rays split over the devices of `mesh` (shard_map)."""
   split, whole = PartitionSpec(parallel.AXIS), PartitionSpec()
   ray_axis = split if styles is None else PartitionSpec(None, parallel.AXIS)
   specs = {**{k: ray_axis for k in IMAGE_OUTPUTS}, "complete": split}
   return jax.shard_map(
-      lambda p, r, s: _image_outputs(field_fn, p, config, white_background, budget, r, s),
-      mesh=mesh, in_specs=(whole, split, whole), out_specs=specs)(params, rays, styles)
+      lambda p, r, s, g: _image_outputs(field_fn, p, config, white_background, budget, r, s, g),
+      mesh=mesh, in_specs=(whole, split, whole, whole), out_specs=specs)(params, rays, styles,
+                                                                          first)
+
+
+def _render_call(field_fn, params, config, white_background, mesh, piece, styles, budget=None,
+                 first=None):
+  """One jitted call on `piece`'s rays, split over `mesh`; numpy outputs."""
+  if mesh.size == 1:
+    out = _render_chunk(field_fn, params, config, white_background, budget, piece, styles,
+                        first)
+  else:
+    out = parallel.gather(_render_chunk_sharded(field_fn, params, config, white_background,
+                                                budget, mesh, parallel.split_rows(piece, mesh),
+                                                styles, first))
+  return {k: np.asarray(v) for k, v in out.items()}
 
 
 @functools.partial(jax.jit, static_argnums=(1,))
-def _sample_counts(grid, config, rays):
-  return occupancy.count(rays, occupancy.occupied(grid, config.grid_threshold), config)
+def _sample_counts(grid, config, rays, first):
+  return occupancy.count(rays, occupancy.occupied(grid, config.grid_threshold), config, first)
 
 
 def sample_budget(needed: int, config) -> int:
   """The static budget of a rendering call that needs `needed` samples: the next power of
   two (so a few compilations serve every call), at least one ray's march_steps."""
   return max(config.march_steps, 1 << max(0, int(needed) - 1).bit_length())
+
+
+TERMINATED = 1e-4  # rendering stops a ray once its transmittance falls below this.
+
+
+def _render_call_grid(field_fn, params, grid, config, white_background, mesh, piece, styles):
+  """One call's rays with the grid sampler, marched in config.march_segments segments of
+  their steps: after each, rays whose transmittance fell below TERMINATED take no more
+  samples (early ray termination), and each segment gets the budget its samples need
+  (counted first on the host). The segments' composites are joined front to back."""
+  n = piece["origins"].shape[0]
+  trans = np.ones(n, np.float32)
+  total, complete = None, np.ones(n, bool)
+  for first in range(0, config.march_steps, occupancy.segment_length(config)):
+    piece = {**piece, "alive": trans > TERMINATED}
+    first = np.int32(first)
+    needed = np.asarray(_sample_counts(grid, config, piece, first))
+    needed = needed.reshape(mesh.size, -1).sum(1).max()
+    if needed == 0 and total is not None:
+      continue
+    out = _render_call(field_fn, params, config, False, mesh, piece, styles,
+                       sample_budget(needed, config), first)
+    if total is None:
+      total = {k: np.zeros_like(out[k]) for k in ("rgb", "depth", "accumulation")}
+    total["rgb"] += trans[:, None] * out["rgb"]
+    total["depth"] += trans * out["depth"]
+    total["accumulation"] += trans * out["accumulation"]
+    acc = out["accumulation"] if styles is None else out["accumulation"][0]
+    trans = trans * (1.0 - acc)
+    complete &= out["complete"]
+  acc = total["accumulation"]
+  disparity = 1.0 / np.maximum(1e-10, np.where(acc > 1e-10, total["depth"] / np.maximum(
+      acc, 1e-10), 0.0))
+  rgb = total["rgb"] + (1.0 - acc)[..., None] if white_background else total["rgb"]
+  return {"rgb": rgb, "depth": total["depth"], "disparity": disparity, "accumulation": acc,
+          "complete": complete}
 
 
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
@@ -311,10 +365,11 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   of zero length), so peak memory depends on the chunk size, not on the image size, and
   there is one compilation. With `styles` [M, style_dim] and a style field, renders all M
   styles in each call (a style sweep: the trunk runs once per sample for all of them, see
-  render_rays_styles). With the occupancy-grid sampler, each call's sample budget is what
-  its rays need, rounded up to a power of two (sample_budget): counted on the host first,
-  so no slot is spent on empty space and no ray overflows (one that did would go again at
-  the front of a later call).
+  render_rays_styles). With the occupancy-grid sampler, each call marches its rays in
+  segments with early ray termination, and each segment's sample budget is what its rays
+  need, rounded up to a power of two (_render_call_grid, sample_budget): no slot is spent
+  on empty space or behind an opaque surface, and no ray overflows (one that did would go
+  again at the front of a later call).
 
   `mesh` (parallel.AXIS; default: every device of this process, parallel.local_mesh):
   each call's rays are split over its devices (shard_map), `chunk` on each; a mesh of
@@ -332,6 +387,8 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   if mesh.size > 1:
     params = parallel.replicated(params, mesh)
     styles = None if styles is None else parallel.replicated(styles, mesh)
+  else:  # on the device once, not once per call
+    params, styles = jax.device_put((params, styles), mesh.devices.flat[0])
   per_call = chunk * mesh.size
   shape = rays["origins"].shape[:-1]
   flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
@@ -347,19 +404,14 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     size = take.size
     piece = {k: np.concatenate([v[take], np.repeat(blank[k], per_call - size, 0)])
              for k, v in flat.items()}
-    budget = None
-    if grid is not None:  # exactly what the call needs, on its busiest device.
-      counts = np.asarray(_sample_counts(grid, config, piece)).reshape(mesh.size, chunk)
-      budget = sample_budget(counts.sum(1).max(), config)
-    if mesh.size == 1:
-      out = _render_chunk(field_fn, params, config, white_background, budget, piece, styles)
+    if grid is None:
+      out = _render_call(field_fn, params, config, white_background, mesh, piece, styles)
     else:
-      out = parallel.gather(_render_chunk_sharded(field_fn, params, config, white_background,
-                                                  budget, mesh,
-                                                  parallel.split_rows(piece, mesh), styles))
-    done = np.asarray(out["complete"])[:size]
+      out = _render_call_grid(field_fn, params, grid, config, white_background, mesh, piece,
+                              styles)
+    done = out["complete"][:size]
     for k in IMAGE_OUTPUTS:
-      value = np.take(np.asarray(out[k]), np.arange(size), axis=axis)
+      value = np.take(out[k], np.arange(size), axis=axis)
       if k not in outputs:
         outputs[k] = np.zeros((*value.shape[:axis], n, *value.shape[axis + 1:]), value.dtype)
       index = (slice(None),) * axis + (take[done],)

@@ -359,3 +359,19 @@ def test_a_multistyle_run_pointed_at_a_nerf_run_of_another_trunk_is_refused(fast
   err = capsys.readouterr().err.strip().splitlines()[-1]
   assert "density-aware" in err and "occupancy grid" in err, err
   assert not os.path.exists(fast_world["root"] / "ms_da")
+
+
+def test_segmented_rendering_with_early_termination_equals_one_pass(fast_world):
+  run = msnerf_jax.load_run(fast_world["nerf"])
+  scene = fast_world["scene"]
+  rays = scene.camera_rays(scene.c2w[4])
+  one_pass = dataclasses.replace(run.config, march_segments=1)
+  # A denser field than 6 steps of training give (density x e^3), so rays turn opaque.
+  trunk = run.params["fine"]["trunk"]
+  density = {**trunk["density"], "bias": trunk["density"]["bias"] + 3.0}
+  params = {**run.params, "fine": {**run.params["fine"], "trunk": {**trunk, "density": density}}}
+  a = render_lib.render_image(NerfField(run.config), params, rays, run.config, True, chunk=64)
+  b = render_lib.render_image(NerfField(one_pass), params, rays, one_pass, True, chunk=64)
+  assert a["accumulation"].max() > 0.99  # some rays do turn opaque
+  for k in ("rgb", "accumulation", "depth"):
+    np.testing.assert_allclose(a[k], b[k], atol=3e-4)

@@ -30,9 +30,11 @@ HELP = {
     "sampler": "where to sample: hierarchical (coarse + fine networks) or grid (one network, "
                "only in the occupied cells of an occupancy grid)",
     "scene_box": "half side of the scene's box around the origin, for the hash trunk and the "
-                 "grid (0 = Blender 1.5, NDC 1, captures: the farthest camera)",
+                 "grid (0 = Blender and NDC 1.5, captures: the farthest camera)",
     "grid_resolution": "grid sampler: cells per side of the occupancy grid",
     "march_steps": "grid sampler: candidate samples per ray across the box",
+    "march_segments": "grid sampler: rendering marches in this many segments, a ray stopping "
+                      "after one once its transmittance is below 1e-4",
     "samples_per_ray": "grid sampler: sample budget per ray (shared by a batch's rays)",
     "grid_every": "grid sampler: steps between refreshes of the grid",
     "grid_warmup": "grid sampler: steps during which a refresh visits every cell",

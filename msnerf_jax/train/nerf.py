@@ -195,12 +195,12 @@ def init_state(config: NerfConfig) -> state_lib.TrainState:
 
 
 def scene_box(scene: Scene) -> float:
-  """Half side of a box centred at the origin that holds the scene: NDC scenes 1 (the NDC
-  cube), Blender scenes 1.5 (instant-NGP's box of the synthetic objects), other captures the
-  farthest camera's distance from the origin (the cameras surround what they film)."""
-  if scene.ndc:
-    return 1.0
-  if scene.format == "blender":
+  """Half side of a box centred at the origin that holds the scene: Blender scenes 1.5
+  (instant-NGP's box of the synthetic objects), NDC scenes 1.5 (the NDC cube of the
+  reference view, with room for the other views' frustums: fern's reach |x| = 1.35), other
+  captures the farthest camera's distance from the origin (the cameras surround what they
+  film)."""
+  if scene.ndc or scene.format == "blender":
     return 1.5
   return float(np.max(np.linalg.norm(np.asarray(scene.c2w)[:, :3, 3], axis=-1)))
 
