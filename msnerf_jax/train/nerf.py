@@ -206,9 +206,9 @@ def scene_box(scene: Scene) -> float:
 
 
 def resolve_config(config: NerfConfig, scene: Scene) -> NerfConfig:
-  """The config with what depends on the scene filled in (scene_box 0 -> scene_box(scene)),
-  checked (config.check_nerf_config)."""
-  if config.scene_box == 0:
+  """The config with what depends on the scene filled in (scene_box 0 -> scene_box(scene)
+  when the hash trunk or the grid sampler uses it), checked (config.check_nerf_config)."""
+  if config.scene_box == 0 and (config.trunk == "hash" or config.sampler == "grid"):
     config = dataclasses.replace(config, scene_box=scene_box(scene))
   config_lib.check_nerf_config(config)
   return config
