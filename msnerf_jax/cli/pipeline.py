@@ -14,7 +14,8 @@ _HELP = {
     "adain_batch": "crops per decoder step",
     "adain_lr": "decoder learning rate",
     "style_weight": "weight of the decoder's style loss",
-    "preset": "NeRF preset (cpu = small and fast, paper = reference)",
+    "preset": "NeRF preset (fast = hash grid + occupancy grid, cpu = small MLP, paper = "
+              "reference)",
     "nerf_steps": "NeRF training steps (0 = the preset's)",
     "nerf_batch_rays": "NeRF rays per step (0 = the preset's)",
     "ms_steps": "multi-style NeRF training steps",
