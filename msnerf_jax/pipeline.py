@@ -47,7 +47,9 @@ class Settings:
   adain_batch: int = 2
   adain_lr: float = 2e-4
   style_weight: float = 10.0
-  preset: str = "fast"  # NeRF preset (fast: hash trunk + occupancy grid, see the README).
+  # NeRF preset. `fast` wins lego and fern's training but renders forward-facing scenes
+  # slower than `cpu` (README, Benchmarks), so the pipeline keeps `cpu` for now.
+  preset: str = "cpu"
   nerf_steps: int = 0  # 0 = the preset's.
   nerf_batch_rays: int = 0  # 0 = the preset's.
   ms_steps: int = 3000

@@ -1,6 +1,7 @@
 """Rendering rays with a radiance field: the hierarchical coarse/fine pipeline, and whole
 images in fixed-size chunks so memory stays bounded whatever the resolution."""
 
+import dataclasses
 import functools
 from typing import Callable, Dict, Optional
 
@@ -320,6 +321,7 @@ def sample_budget(needed: int, config) -> int:
 
 
 TERMINATED = 1e-4  # rendering stops a ray once its transmittance falls below this.
+RENDER_MLP_CHUNK = 16384  # samples per field call when rendering a config with mlp_chunk 0.
 
 
 def _render_call_grid(field_fn, params, grid, config, white_background, mesh, piece, styles):
@@ -382,6 +384,8 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     with a leading [M] when `styles` is given.
   """
   chunk = chunk or config.render_chunk
+  if config.mlp_chunk == 0:  # forward only: cache-sized field calls cost no scatter here.
+    config = dataclasses.replace(config, mlp_chunk=RENDER_MLP_CHUNK)
   mesh = mesh or parallel.local_mesh()
   grid = np.asarray(params["occupancy"]) if config.sampler == "grid" else None
   if mesh.size > 1:
