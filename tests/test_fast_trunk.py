@@ -236,6 +236,7 @@ TWO_DEVICES = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # 30-50 s (two compilations in a subprocess); the default suite is at 10 min
 def test_two_devices_give_the_same_fast_steps_as_one(tiny_blender):
   tests = os.path.dirname(os.path.abspath(__file__))
   result = subprocess.run([sys.executable, "-c", TWO_DEVICES.format(tests=tests,
