@@ -15,7 +15,7 @@ from jax.sharding import Mesh, PartitionSpec
 from msnerf_jax import occupancy
 from msnerf_jax import parallel
 from msnerf_jax import sampling
-from msnerf_jax.volume_rendering import volume_render, volume_render_packed
+from msnerf_jax.volume_rendering import disparity_of, volume_render, volume_render_packed
 
 # field_fn(params, points [R, S, 3], viewdirs [R, S, 3]) -> (rgb [..., R, S, 3], raw sigma [R, S])
 FieldFn = Callable[..., tuple]
@@ -350,8 +350,7 @@ def _render_call_grid(field_fn, params, grid, config, white_background, mesh, pi
     trans = trans * (1.0 - acc)
     complete &= out["complete"]
   acc = total["accumulation"]
-  disparity = 1.0 / np.maximum(1e-10, np.where(acc > 1e-10, total["depth"] / np.maximum(
-      acc, 1e-10), 0.0))
+  disparity = np.asarray(disparity_of(total["depth"], acc))
   rgb = total["rgb"] + (1.0 - acc)[..., None] if white_background else total["rgb"]
   return {"rgb": rgb, "depth": total["depth"], "disparity": disparity, "accumulation": acc,
           "complete": complete}
@@ -384,7 +383,7 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     with a leading [M] when `styles` is given.
   """
   chunk = chunk or config.render_chunk
-  if config.mlp_chunk == 0:  # forward only: cache-sized field calls cost no scatter here.
+  if config.sampler == "grid" and config.mlp_chunk == 0:  # forward only: chunks are cheap.
     config = dataclasses.replace(config, mlp_chunk=RENDER_MLP_CHUNK)
   mesh = mesh or parallel.local_mesh()
   grid = np.asarray(params["occupancy"]) if config.sampler == "grid" else None

@@ -8,6 +8,14 @@ import jax
 import jax.numpy as jnp
 
 
+def disparity_of(depth: jnp.ndarray, acc: jnp.ndarray) -> jnp.ndarray:
+  """Inverse of the expected depth of what was hit, depth [...] / accumulation [...]. An
+  empty ray (acc = 0) gets depth 0 and disparity 1e10, never 0/0: the guard keeps NaN out
+  of both values and their gradients."""
+  safe_acc = jnp.maximum(acc, 1e-10)
+  return 1.0 / jnp.maximum(1e-10, jnp.where(acc > 1e-10, depth / safe_acc, 0.0))
+
+
 def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
                   directions: jnp.ndarray, white_background: bool = False,
                   background: Optional[jnp.ndarray] = None) -> Dict[str, jnp.ndarray]:
@@ -40,10 +48,7 @@ def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
   acc = jnp.sum(weights, -1)
   color = jnp.sum(weights[..., None] * rgb, -2)
   depth = jnp.sum(weights * z_vals, -1)
-  # Expected depth of what was hit; an empty ray (acc = 0) gets depth 0 and disparity 1e10,
-  # never 0/0: the guard keeps NaN out of both values and their gradients.
-  safe_acc = jnp.maximum(acc, 1e-10)
-  disparity = 1.0 / jnp.maximum(1e-10, jnp.where(acc > 1e-10, depth / safe_acc, 0.0))
+  disparity = disparity_of(depth, acc)
   if background is not None:
     color = color + (1.0 - acc[..., None]) * background
   elif white_background:
@@ -92,8 +97,7 @@ def volume_render_packed(rgb: jnp.ndarray, sigma: jnp.ndarray, samples: Dict[str
   color = per_ray(w * rgb)
   acc = per_ray(weights)
   depth = per_ray(weights * samples["t"])
-  safe_acc = jnp.maximum(acc, 1e-10)
-  disparity = 1.0 / jnp.maximum(1e-10, jnp.where(acc > 1e-10, depth / safe_acc, 0.0))
+  disparity = disparity_of(depth, acc)
   lead = (slice(None),) + (None,) * (rgb.ndim - 2)
   if background is not None:
     color = color + (1.0 - acc[lead])[..., None] * background[lead]
