@@ -189,6 +189,40 @@ def check_nerf_config(config: NerfConfig) -> None:
       bad("distortion_weight", "not available with the occupancy-grid sampler (use 0)")
 
 
+@dataclasses.dataclass(frozen=True)
+class FeatureConfig:
+  """VGG feature field: the encoder's relu4_1 features as a field on a NeRF run's frozen
+  geometry (models/feature_field.py), stylized in 3D by AdaIN (msnerf_jax/feature_style.py).
+
+  `nerf` is the NeRF run's config; `scene_box` the half side of the box the field's hash grid
+  covers (0 = the NeRF's, resolved from the scene when training starts).
+  """
+  nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
+  scene_box: float = 0.0
+  dim: int = 64  # the rendered feature, lifted to 512 channels after compositing.
+  width: int = 0  # a hidden layer (GELU) between the hash features and `dim` (0: linear).
+  hash_levels: int = 16
+  hash_features: int = 4
+  hash_table_size: int = 2 ** 16
+  hash_min_res: int = 16
+  hash_max_res: int = 256
+  top_k: int = 16  # hierarchical NeRFs: the heaviest fine samples of a ray get a feature.
+  stylize_scale: int = 1  # targets: the views enlarged this many times (as stylize-scene's).
+  rays_per_cell: int = 2  # jittered rays averaged into one relu4_1 cell (8x8 input pixels).
+  batch_cells: int = 512  # relu4_1 cells per step.
+  # "mse" or "l1" between the cells' features and the encoder's. Measured on lego: L1 fits
+  # the object's cells no better than zeros (the median of sparse ReLU features that
+  # differ from view to view); MSE fits their mean.
+  loss: str = "mse"
+  steps: int = 4000
+  lr_init: float = 2e-2
+  lr_final: float = 1e-3
+  lr_decay_steps: int = 4000
+  seed: int = 0
+  checkpoint_every: int = 500
+  keep_checkpoints: int = 3
+
+
 def override(config: T, **overrides: Any) -> T:
   """`config` with the overrides that are not None. On a NerfConfig, a net_depth given
   without skip_layer puts the skip connection after the middle layer."""
@@ -201,7 +235,7 @@ def override(config: T, **overrides: Any) -> T:
 def config_class(kind: str) -> Type:
   """The config dataclass of a run kind as saved in run.json."""
   kinds: Dict[str, Type] = {"nerf": NerfConfig, "adain": AdainConfig,
-                            "multistyle": MultistyleConfig}
+                            "multistyle": MultistyleConfig, "features": FeatureConfig}
   if kind not in kinds:
     raise UserError(f"unknown run kind {kind!r} (known: {', '.join(sorted(kinds))})")
   return kinds[kind]

@@ -27,6 +27,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from msnerf_jax import adain as adain_lib
 from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
 from msnerf_jax import files
@@ -38,8 +39,9 @@ from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, read_manifest
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import load_run, scene_of, style_vectors
-from msnerf_jax.views import render_styles, render_view
+from msnerf_jax.feature_style import style_vector_of_stats
+from msnerf_jax.runs import content_stats, load_run, scene_of, style_vectors
+from msnerf_jax.views import render_feature_styles, render_styles, render_view
 from msnerf_jax.progress import progress_bar
 
 def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
@@ -125,6 +127,37 @@ def per_frame_adain(decoder, encoder, base: Sequence[Dict[str, np.ndarray]], sty
   return frames
 
 
+def feature_field_frames(field, scene, base, base_nerf: str, encoder, picture: np.ndarray,
+                         alpha: float, chunk: Optional[int] = None, progress: bool = False):
+  """(frames, geometry) of a loaded feature run along the path `base` was rendered on: the
+  style's statistics from the picture cover-cropped to the decoded size (as per-frame AdaIN
+  crops it), at strength alpha (a blend towards the scene's own statistics), the features
+  painted by the run's decoder; on white-background scenes the background is put back to
+  white by the NeRF's opacity, as per_frame_adain does. The geometry is `base`'s when the
+  field was trained on that NeRF run (`base_nerf`), else its own NeRF's renders."""
+  decoder = stylize_lib.load_decoder(field.record["decoder"])
+  stats = content_stats(field.run_dir)
+  s = field.config.stylize_scale
+  crop = stylize_lib.cover_crop(picture, -(-scene.height * s // 8) * 8,
+                                -(-scene.width * s // 8) * 8)
+  vector = np.asarray(adain_lib.style_vector(encoder, crop))
+  vector = alpha * vector + (1.0 - alpha) * style_vector_of_stats(stats)
+  geometry = base
+  if os.path.abspath(field.record["nerf_run"]) != os.path.abspath(base_nerf):
+    geometry = [render_view(scene, field.params["nerf"], field.config.nerf, b["pose"], chunk)
+                for b in base]
+  frames = []
+  for b, g in zip(progress_bar(base, desc="feature-field path", disable=not progress,
+                               leave=False), geometry):
+    frame = render_feature_styles(scene, field.params, field.config, b["pose"], decoder, stats,
+                                  vector[None], chunk)[0]
+    if scene.white_background:
+      acc = g["accumulation"][..., None]
+      frame = frame * acc + (1.0 - acc)
+    frames.append(frame)
+  return frames, geometry
+
+
 def markdown_table(rows: Sequence[Dict[str, Any]], columns: Sequence[str]) -> List[str]:
   """Lines of a Markdown table of `rows` (floats with 4 decimals)."""
   fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
@@ -144,7 +177,8 @@ def method_labels(runs) -> List[str]:
 def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                  decoder_dir: Optional[str] = None, frames: int = 40,
                  chunk: Optional[int] = None, progress: bool = True,
-                 single_style_runs: Sequence[str] = ()) -> Dict[str, Any]:
+                 single_style_runs: Sequence[str] = (),
+                 feature_runs: Sequence[str] = ()) -> Dict[str, Any]:
   """Evaluates multi-style runs and the baselines on one camera path; writes tables and figures.
 
   Args:
@@ -153,6 +187,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
       make the per-frame AdaIN baseline.
     single_style_runs: NeRF runs each trained on one style of that dataset (`msnerf nerf
       train --stylized DIR --style NAME`): the single-style baseline of their style.
+    feature_runs: feature-field runs of the same scene (`msnerf features train`), each
+      painting every evaluated style from its image (row "feature-field").
   Returns {"rows": [...], "files": [...], "seconds": float}.
   """
   t0 = time.time()
@@ -189,9 +225,10 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
                              .round().astype(int)] if frames else scene.render_poses
   methods = method_labels(runs)
+  fields = [load_run(d, "features") for d in feature_runs]
 
   # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
-  base = [render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk)
+  base = [{**render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk), "pose": c2w}
           for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
   # All styles in one sweep per view, for each multi-style run.
   stack = [np.stack([v[n] for n in names]) for v in vectors]
@@ -213,6 +250,11 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                  for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
                                  leave=False)]
       candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))
+    for i, field in enumerate(fields):
+      label = "feature-field" + (f"#{i + 1}" if len(fields) > 1 else "")
+      candidates.append((label, *feature_field_frames(
+          field, scene, base, run.record["nerf_run"], encoder, picture,
+          sources[name]["alpha"], chunk, progress)))
     candidates.append(("adain-per-frame", per_frame, base))
     for label, frames_, geometry in candidates:
       rows.append({"method": label, "style": name,

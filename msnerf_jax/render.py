@@ -229,7 +229,8 @@ def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
     volume_render_packed's outputs (rgb, depth, disparity, accumulation with a leading [M]
     when conditioned; weights [B]) and "complete" [R] bool: False for a ray whose samples
     did not all fit in the budget (render it again in a smaller batch; leave it out of a
-    loss).
+    loss); the slots' rays "sample_ray" [B] (R for an empty slot) and positions
+    "sample_points" [B, 3].
   """
   n = rays["origins"].shape[0]
   grid = occupancy.occupied(params["occupancy"], config.grid_threshold)
@@ -251,7 +252,8 @@ def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
     m = conditioning.shape[0]
     out = {"rgb": jnp.moveaxis(out["rgb"], 1, 0), "weights": out["weights"],
            **{k: jnp.broadcast_to(out[k], (m, n)) for k in ("depth", "disparity", "accumulation")}}
-  return {**out, "complete": samples["complete"]}
+  return {**out, "complete": samples["complete"], "sample_ray": samples["ray"],
+          "sample_points": points}
 
 
 def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.ndarray,
@@ -425,3 +427,78 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     lead = joined.shape[:axis]
     result[k] = joined.reshape(*lead, *shape, *joined.shape[axis + 1:])
   return result
+
+
+# ----------------------------------------------------------------------------- feature fields
+
+
+def render_feature_rays(field, feature_fn, params, rays: Dict[str, jnp.ndarray], config,
+                        top_k: int = 16, budget: Optional[int] = None
+                        ) -> Dict[str, jnp.ndarray]:
+  """A feature field along rays, composited with a NeRF's frozen weights.
+
+  The NeRF (`field`, params["nerf"]) renders the rays as render_rays does without
+  randomness, under stop_gradient (no gradient reaches it, and XLA computes none); its
+  weights composite `feature_fn(params["features"], points [..., 3]) -> [..., D]` at the
+  samples that carry them: with the hierarchical sampler the `top_k` heaviest fine samples
+  of each ray, with the grid sampler every sample it marched (`budget` slots, as
+  render_rays_grid's).
+
+  Returns:
+    {"features": [R, D], "accumulation": [R] (the sum of the weights used), "complete":
+    [R] bool (False: a ray whose samples overflowed the grid sampler's budget)}.
+  """
+  chex.assert_rank(rays["origins"], 2)
+  n = rays["origins"].shape[0]
+  nerf = jax.lax.stop_gradient(params["nerf"])
+  if config.sampler == "grid":
+    out = render_rays_grid(field, nerf, rays, config, {}, False, budget=budget)
+    weights = jax.lax.stop_gradient(out["weights"])
+    feats = feature_fn(params["features"], jax.lax.stop_gradient(out["sample_points"]))
+    per_ray = lambda x: jax.ops.segment_sum(x, out["sample_ray"], n + 1,
+                                            indices_are_sorted=True)[:n]
+    return {"features": per_ray(weights[:, None] * feats), "accumulation": per_ray(weights),
+            "complete": out["complete"]}
+  fine = render_rays(field, nerf, rays, config)["fine"]
+  k = min(top_k, fine["weights"].shape[-1])
+  weights, index = jax.lax.top_k(jax.lax.stop_gradient(fine["weights"]), k)
+  points, _ = points_along(rays, jnp.take_along_axis(fine["z_vals"], index, -1))
+  feats = feature_fn(params["features"], jax.lax.stop_gradient(points))  # [R, K, D]
+  return {"features": jnp.sum(weights[..., None] * feats, -2),
+          "accumulation": jnp.sum(weights, -1), "complete": jnp.ones((n,), bool)}
+
+
+_render_feature_chunk = jax.jit(render_feature_rays, static_argnums=(0, 1, 4, 5, 6))
+
+
+def render_feature_image(field, feature_fn, params, rays: Dict[str, jnp.ndarray], config,
+                         top_k: int = 16, chunk: Optional[int] = None
+                         ) -> Dict[str, np.ndarray]:
+  """render_feature_rays over rays of any leading shape [...], `chunk` rays per jitted call
+  (the last padded with rays of zero length; with the grid sampler each call's budget is
+  the samples its rays need, counted first, so none overflows).
+
+  Returns: numpy {"features": [..., D], "accumulation": [...]}.
+  """
+  chunk = chunk or config.render_chunk
+  grid = np.asarray(params["nerf"]["occupancy"]) if config.sampler == "grid" else None
+  if grid is not None and config.mlp_chunk == 0:  # forward only: chunks are cheap.
+    config = dataclasses.replace(config, mlp_chunk=RENDER_MLP_CHUNK)
+  params = jax.device_put(params)
+  shape = rays["origins"].shape[:-1]
+  flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
+  n = flat["origins"].shape[0]
+  blank = {k: v[:1] for k, v in flat.items()}
+  blank["far"] = blank["near"]
+  parts = []
+  for start in range(0, n, chunk):
+    size = min(chunk, n - start)
+    piece = {k: np.concatenate([v[start:start + size], np.repeat(blank[k], chunk - size, 0)])
+             for k, v in flat.items()}
+    budget = None
+    if grid is not None:
+      budget = sample_budget(np.asarray(_sample_counts(grid, config, piece, None)).sum(), config)
+    out = _render_feature_chunk(field, feature_fn, params, piece, config, top_k, budget)
+    parts.append({k: np.asarray(out[k])[:size] for k in ("features", "accumulation")})
+  return {k: np.concatenate([p[k] for p in parts]).reshape(*shape, *parts[0][k].shape[1:])
+          for k in ("features", "accumulation")}

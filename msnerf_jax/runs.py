@@ -20,11 +20,12 @@ from msnerf_jax.errors import UserError
 
 RUN_FILE = "run.json"
 STYLE_VECTORS = "style_vectors.npy"  # a multi-style run's training styles, [M, 1024].
+CONTENT_STATS = "content_stats.npy"  # a feature run's scene statistics (relu4_1), [2, 512].
 
 
 # The command that makes a run of each kind (named when another kind is given).
 TRAIN_COMMANDS = {"nerf": "msnerf nerf train", "adain": "msnerf adain train",
-                  "multistyle": "msnerf multistyle train"}
+                  "multistyle": "msnerf multistyle train", "features": "msnerf features train"}
 
 
 def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
@@ -198,16 +199,28 @@ def style_vectors(run: Run) -> Dict[str, np.ndarray]:
   return dict(zip(names, vectors))
 
 
+def content_stats(run_dir: str):
+  """(mean [512], std [512]) relu4_1 statistics of a feature run's training views, pooled
+  over every cell (msnerf_jax.train.features.prepare_targets)."""
+  stats = read_npy(os.path.join(run_dir, CONTENT_STATS), (2, 512))
+  return stats[0], stats[1]
+
+
 def _expected_params(kind: str, config: Any):
   """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
   # pylint: disable=g-import-not-at-top
   import jax
+  from msnerf_jax.models.nerf import init_nerf_params
   if kind == "nerf":
-    from msnerf_jax.models.nerf import init_nerf_params
     return jax.eval_shape(lambda: init_nerf_params(config, jax.random.PRNGKey(0)))
   if kind == "multistyle":
     from msnerf_jax.models.multistyle import init_multistyle_params
     return jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(0)))
+  if kind == "features":
+    from msnerf_jax.models.feature_field import init_feature_params
+    key = jax.random.PRNGKey(0)
+    return jax.eval_shape(lambda: {"nerf": init_nerf_params(config.nerf, key), "features":
+                                   init_feature_params(config, config.scene_box, key)})
   if kind == "adain":
     from msnerf_jax.models import decoder as decoder_lib
     if config.upsample in decoder_lib.UPSAMPLE_MODES:  # else refused by stylize.load_decoder.

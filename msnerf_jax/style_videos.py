@@ -20,6 +20,16 @@ def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRe
                                            np.stack(styles), chunk)["rgb"]
 
 
+def feature_style_renderer(run: Any, scene: Any, decoder: Any, content_stats: Any,
+                           chunk: Optional[int] = None) -> StyleRenderer:
+  """Renders one camera of a loaded feature run in K styles: one feature render, K AdaIN
+  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]."""
+  from msnerf_jax.views import render_feature_styles  # pylint: disable=g-import-not-at-top
+  return lambda camera, styles: render_feature_styles(scene, run.params, run.config, camera,
+                                                      decoder, content_stats,
+                                                      np.stack(styles), chunk)
+
+
 def spaced_views(poses: Sequence[Any], n: int) -> List[Any]:
   """n cameras of `poses` (c2w [P, 3, 4] or cameras.Camera), (P - 1) / n apart, from the
   first."""

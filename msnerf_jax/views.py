@@ -8,8 +8,10 @@ import numpy as np
 from jax.sharding import Mesh
 
 from msnerf_jax import render as render_lib
-from msnerf_jax.config import MultistyleConfig, NerfConfig
+from msnerf_jax.config import FeatureConfig, MultistyleConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
+from msnerf_jax.feature_style import cell_grid, decode_styles
+from msnerf_jax.models.feature_field import FeatureFieldFn
 from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
 
@@ -36,3 +38,44 @@ def render_styles(scene: Scene, params, config: MultistyleConfig, camera,
   return render_lib.render_image(MultistyleField(config), params, scene.camera_rays(camera),
                                  config.nerf, scene.white_background, chunk, styles=styles,
                                  mesh=mesh)
+
+
+def render_feature_map(scene: Scene, params, config: FeatureConfig, camera, per_side: int = 2,
+                       chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """One camera (as render_view's) of a feature field, at its relu4_1 cells: the view
+  enlarged config.stylize_scale times has one cell per 8 x 8 pixels, and each cell's
+  feature is the mean of per_side x per_side rays inside it (feature_style.cell_grid),
+  lifted to the encoder's channels after averaging (the lift is affine).
+
+  Returns: {"features": [h, w, 512] (what the AdaIN decoder reads; the background feature
+  fills 1 - accumulation), "accumulation": [h, w] the scene's opacity in each cell}.
+  """
+  height, width = scene.camera_parts(camera)[3:]
+  rows, cols = cell_grid(height, width, config.stylize_scale, per_side)
+  fn = FeatureFieldFn(config)
+  out = render_lib.render_feature_image(NerfField(config.nerf), fn, params,
+                                        scene.rays_at(camera, rows, cols), config.nerf,
+                                        config.top_k, chunk)
+  acc = out["accumulation"].mean(-1)
+  lifted = fn.lift(params["features"], jnp.asarray(out["features"].mean(-2)), jnp.asarray(acc))
+  return {"features": np.asarray(lifted), "accumulation": acc}
+
+
+def render_feature_styles(scene: Scene, params, config: FeatureConfig, camera, decoder,
+                          content_stats, styles: np.ndarray, chunk: Optional[int] = None
+                          ) -> np.ndarray:
+  """One camera of a feature field in K styles: one feature render, K AdaIN maps and
+  decodes. styles: [K, 1024] style vectors (relu4_1 means, then stds: adain.style_vector;
+  blends and strengths are blends of them, e.g. with the scene's own statistics for alpha).
+  decoder: stylize.Decoder; content_stats: (mean, std) [512] of the scene.
+
+  Returns: [K, H, W, 3] float32 in [0, 1], the camera's size.
+  """
+  styles = np.atleast_2d(np.asarray(styles, np.float32))
+  half = styles.shape[1] // 2
+  fmap = render_feature_map(scene, params, config, camera, chunk=chunk)
+  height, width = scene.camera_parts(camera)[3:]
+  # The background feature fills 1 - accumulation: every cell is whole.
+  return decode_styles(decoder, fmap["features"], np.ones_like(fmap["accumulation"]),
+                       content_stats, styles[:, :half], styles[:, half:], 1.0, height, width,
+                       config.stylize_scale)

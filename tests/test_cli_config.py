@@ -31,6 +31,8 @@ def dests(parser):
     (("multistyle", "train"), config_lib.MultistyleConfig, {"lr_init": "lr"},
      ("nerf",)),  # the NeRF run's config
     (("adain", "train"), config_lib.AdainConfig, {}, ("encoder",)),  # one encoder exists
+    (("features", "train"), config_lib.FeatureConfig, {"lr_init": "lr"},
+     ("nerf",)),  # the NeRF run's config
 ])
 def test_every_config_field_has_an_option(path, cls, aliases, fixed):
   have = dests(verb_parser(*path))
@@ -41,7 +43,7 @@ def test_every_config_field_has_an_option(path, cls, aliases, fixed):
 
 def test_help_has_no_default_none_on_required_options():
   for path in (("nerf", "train"), ("multistyle", "train"), ("adain", "train"),
-               ("nerf", "eval")):
+               ("features", "train"), ("nerf", "eval")):
     text = " ".join(verb_parser(*path).format_help().split())
     assert "--data DATA (default: None)" not in text
     for action in verb_parser(*path)._actions:  # pylint: disable=protected-access

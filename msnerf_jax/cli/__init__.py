@@ -16,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli import adain as adain_cli
   from msnerf_jax.cli import demo as demo_cli
+  from msnerf_jax.cli import features as features_cli
   from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.cli import pipeline as pipeline_cli
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
   nerf_cli.register(commands, _Formatter)
   adain_cli.register(commands, _Formatter)
   multistyle_cli.register(commands, _Formatter)
+  features_cli.register(commands, _Formatter)
   pipeline_cli.register(commands, _Formatter)
   demo_cli.register(commands, _Formatter)
   view_cli.register(commands, _Formatter)

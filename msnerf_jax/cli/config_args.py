@@ -56,10 +56,13 @@ HELP = {
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: Any,
-                         skip: Iterable[str] = (), title: str = "more settings") -> None:
+                         skip: Iterable[str] = (), title: str = "more settings",
+                         helps: Dict[str, str] = None) -> None:
   """One option --field-name per field of the dataclass `cls` not in `skip` (those have
   hand-written options), in a group of its own. Each defaults to None, meaning "as
-  `defaults` says" (shown in the help); booleans get --x / --no-x."""
+  `defaults` says" (shown in the help); booleans get --x / --no-x. `helps` replaces HELP's
+  text for some fields (a name that means something else in this config)."""
+  helps = {**HELP, **(helps or {})}
   group = parser.add_argument_group(title)
   for field in dataclasses.fields(cls):
     if field.name in skip or dataclasses.is_dataclass(field.default_factory):
@@ -70,7 +73,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: A
                               if isinstance(field.default, bool) else
                               {"type": type(field.default), "metavar": type(field.default).__name__.upper()})
     group.add_argument("--" + field.name.replace("_", "-"), default=None,
-                       help=f"{HELP.get(field.name, field.name.replace('_', ' '))} "
+                       help=f"{helps.get(field.name, field.name.replace('_', ' '))} "
                             f"(default: {shown})", **kwargs)
 
 

@@ -116,6 +116,9 @@ def register(commands, formatter):
   p.add_argument("--single-style", nargs="+", default=(), metavar="NERF_RUN",
                  help="NeRF runs trained on one style of that dataset (`msnerf nerf train "
                       "--stylized DIR --style NAME`), each compared on its style")
+  p.add_argument("--features", nargs="+", default=(), metavar="FEATURE_RUN",
+                 help="feature-field runs of the same scene (`msnerf features train`), each "
+                      "painting every evaluated style from its image (row feature-field)")
   p.add_argument("--styles", nargs="+", default=None, metavar="NAME",
                  help="training styles to evaluate (default: all stylized ones)")
   p.add_argument("--decoder", default=None,
@@ -136,7 +139,7 @@ def register(commands, formatter):
       epilog="examples: msnerf render --run runs/ms --out runs/ms/video --style starry_night\n"
              "  msnerf render --run runs/ms --out v --interp starry_night scream --t 0.3\n"
              "  msnerf render --run runs/ms --out v --style scream --strength 0.5")
-  p.add_argument("--run", required=True, help="run folder (multi-style, or NeRF)")
+  p.add_argument("--run", required=True, help="run folder (multi-style, feature field, or NeRF)")
   p.add_argument("--out", required=True, help="output file stem")
   p.add_argument("--style", default=None, metavar="STYLE",
                  help="style of the main video (default: the first training style)")
@@ -150,6 +153,9 @@ def register(commands, formatter):
                  help="styles of the morph video and the grid (default: the first two)")
   p.add_argument("--grid-steps", type=int, default=5, help="interpolation steps in the grid")
   p.add_argument("--grid-views", type=int, default=3, help="views (rows) in the grid")
+  p.add_argument("--decoder", default=None, metavar="ADAIN_RUN",
+                 help="feature runs: the AdaIN run that paints the features (default: the one "
+                      "the run was trained for)")
   add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_render)
@@ -248,12 +254,29 @@ def cmd_render(args):
   from msnerf_jax import styles as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.runs import read_run_file, style_vectors
-  if read_run_file(args.run)["kind"] == "nerf":
+  kind = read_run_file(args.run)["kind"]
+  if kind == "nerf":
     return nerf_cli.cmd_render(args)
   styles_lib.check_unit("--t", args.t)
   styles_lib.check_unit("--strength", args.strength)
-  run, scene = load_run_and_scene(args.run, "multistyle")
-  vectors = style_vectors(run)
+  if kind == "features":
+    # pylint: disable=g-import-not-at-top
+    from msnerf_jax import runs, stylize
+    from msnerf_jax.feature_style import style_vector_of_stats
+    if args.style is None and not args.interp:
+      raise UserError(f"{args.run}: a feature run paints any style image: give --style IMG "
+                      "(or --interp A B)")
+    run, scene = load_run_and_scene(args.run, "features")
+    stats = runs.content_stats(args.run)
+    # Its "original" is the scene's own statistics: --strength blends towards them (alpha).
+    vectors = {styles_lib.ORIGINAL: style_vector_of_stats(stats)}
+    renderer = style_videos.feature_style_renderer(
+        run, scene, stylize.load_decoder(args.decoder or run.record["decoder"]), stats,
+        args.chunk)
+  else:
+    run, scene = load_run_and_scene(args.run, "multistyle")
+    vectors = style_vectors(run)
+    renderer = style_videos.style_renderer(run, scene, args.chunk)
   cache = {}
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
                                              args.t, args.strength)
@@ -261,10 +284,10 @@ def cmd_render(args):
   poses, fps, size = render_cameras(scene, args)
   t0 = time.time()
   written = style_videos.write_render_videos(
-      style_videos.style_renderer(run, scene, args.chunk), poses, main, ends,
+      renderer, poses, main, ends,
       output_stem(args.out), fps, args.grid_steps, args.grid_views)
   seconds = time.time() - t0
-  print_summary("multi-style render done", [
+  print_summary(f"{'feature-field' if kind == 'features' else 'multi-style'} render done", [
       ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
       ("frames", f"{len(poses)} of {size}"),
       ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])
@@ -278,7 +301,8 @@ def cmd_evaluate(args):
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a folder")
   result = evaluate.evaluate_run(args.run, args.out, args.styles, args.decoder, args.frames,
-                                 args.chunk, single_style_runs=args.single_style)
+                                 args.chunk, single_style_runs=args.single_style,
+                                 feature_runs=args.features)
   evaluate.print_table(result["rows"])
   print_summary("evaluation done", [("time", f"{result['seconds']:.0f} s"),
                                     ("written", ", ".join(result["files"]))])

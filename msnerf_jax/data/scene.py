@@ -80,23 +80,34 @@ class Scene:
     K = self.K if self.Ks is None else self.Ks[views]
     return K, None if self.distortion is None else self.distortion[views]
 
-  def camera_rays(self, camera) -> Dict[str, jnp.ndarray]:
-    """ray_bundle for every pixel of one camera: [H, W, ...].
+  def camera_parts(self, camera) -> Tuple[np.ndarray, np.ndarray, Optional[np.ndarray], int, int]:
+    """(K [3, 3], c2w [3, 4], distortion [5] or None, height, width) of one camera.
 
     camera: an int, dataset view `camera` with its own pose, intrinsics and distortion; a
     c2w [3, 4] (a render path's camera), seen with the render camera K; or a
     cameras.Camera (a camera path file's, any size and intrinsics).
     """
     if isinstance(camera, cameras_lib.Camera):
-      origins, directions = rays_lib.get_rays(camera.height, camera.width, camera.K,
-                                              camera.c2w, camera.coeffs)
-    elif isinstance(camera, (int, np.integer)):
+      return camera.K, camera.c2w, camera.coeffs, camera.height, camera.width
+    if isinstance(camera, (int, np.integer)):
       K, coeffs = self.view_camera(int(camera))
-      origins, directions = rays_lib.get_rays(self.height, self.width, K, self.c2w[camera],
-                                              coeffs)
-    else:
-      origins, directions = rays_lib.get_rays(self.height, self.width, self.K, camera)
-    return self.bundle(origins, directions)
+      return K, self.c2w[camera], coeffs, self.height, self.width
+    return self.K, np.asarray(camera), None, self.height, self.width
+
+  def camera_rays(self, camera) -> Dict[str, jnp.ndarray]:
+    """ray_bundle for every pixel of one camera (see camera_parts): [H, W, ...]."""
+    K, c2w, coeffs, height, width = self.camera_parts(camera)
+    return self.bundle(*rays_lib.get_rays(height, width, K, c2w, coeffs))
+
+  def rays_at(self, camera, rows, cols) -> Dict[str, jnp.ndarray]:
+    """ray_bundle of one camera (see camera_parts) through the (sub)pixel positions rows,
+    cols [...] (pixel centres at integers): [..., ...]."""
+    K, c2w, coeffs, _, _ = self.camera_parts(camera)
+    rows = jnp.asarray(rows, jnp.float32)
+    c2w = jnp.broadcast_to(jnp.asarray(c2w, jnp.float32)[:3, :4], (*rows.shape, 3, 4))
+    coeffs = None if coeffs is None else jnp.broadcast_to(jnp.asarray(coeffs), (*rows.shape, 5))
+    return self.bundle(*rays_lib.pixel_rays(jnp.asarray(K, jnp.float32), c2w, rows,
+                                            jnp.asarray(cols, jnp.float32), coeffs))
 
   def bundle(self, origins, directions) -> Dict[str, jnp.ndarray]:
     """ray_bundle with this scene's bounds and NDC setting."""

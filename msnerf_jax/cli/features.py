@@ -1,0 +1,95 @@
+"""`msnerf features train`: a VGG feature field on a NeRF run's frozen geometry (AdaIN in 3D;
+its runs render with `msnerf render --style IMG`)."""
+
+import os
+
+from msnerf_jax import config as config_lib
+from msnerf_jax.cli.common import add_parallel_arguments, print_summary, start_processes
+from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
+                                        config_overrides, start_config)
+from msnerf_jax.errors import UserError
+
+_DEFAULTS = config_lib.FeatureConfig()
+_HELPS = {
+    "scene_box": "half side of the box the field's hash grid covers (0 = the NeRF's)",
+    "dim": "channels of the rendered feature (lifted to 512 after compositing)",
+    "width": "width of a hidden layer (GELU) before the feature (0 = none: linear)",
+    "loss": "mse or l1 between the cells' features and the encoder's",
+    "hash_levels": "feature field: hash grid resolution levels",
+    "hash_features": "feature field: features per level",
+    "hash_table_size": "feature field: table entries per level (a power of two)",
+    "hash_min_res": "feature field: coarsest grid resolution",
+    "hash_max_res": "feature field: finest grid resolution",
+    "top_k": "hierarchical NeRFs: the heaviest fine samples of each ray that get a feature",
+    "rays_per_cell": "jittered rays averaged into one relu4_1 cell per step",
+}
+
+
+def register(commands, formatter):
+  ff = commands.add_parser(
+      "features", formatter_class=formatter,
+      help="train a VGG feature field: any style image at once, strokes fixed to the scene",
+      description="The scene's VGG features (the AdaIN encoder's relu4_1) as a field on the "
+                  "frozen geometry of a NeRF run. A style is then one affine map of that "
+                  "field for every view (AdaIN in 3D, content statistics pooled over the "
+                  "scene) and the AdaIN decoder paints it: render with `msnerf render --run "
+                  "RUN --style IMG`.")
+  verbs = ff.add_subparsers(dest="verb", metavar="VERB", required=True)
+  p = verbs.add_parser(
+      "train", formatter_class=formatter,
+      help="train a feature field (re-run the same command to resume)",
+      description="Encodes the training views once (cached in the run), then fits a hash-grid "
+                  "feature field, volume-rendered with the NeRF's frozen weights (the NeRF is "
+                  "copied into the run and gets no gradient and no optimizer state), to the "
+                  "relu4_1 cells of the views: each cell's feature is the mean of several "
+                  "jittered rays inside its 8x8 pixel block, L1 to the encoder's.",
+      epilog="example: msnerf features train --nerf runs/lego_nerf --decoder runs/adain "
+             "--stylize-scale 4 --out runs/lego_features")
+  p.add_argument("--nerf", required=True, help="NeRF run folder (`msnerf nerf train`)")
+  p.add_argument("--decoder", required=True,
+                 help="AdaIN run folder (`msnerf adain train`) that will paint the features")
+  p.add_argument("--out", required=True, help="run folder")
+  p.add_argument("--stylize-scale", type=int, default=_DEFAULTS.stylize_scale, metavar="N",
+                 help="encode the views enlarged N times, as `msnerf stylize-scene "
+                      "--stylize-scale N` does: strokes N x finer relative to the scene")
+  p.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="training steps")
+  p.add_argument("--batch-cells", type=int, default=_DEFAULTS.batch_cells,
+                 help="relu4_1 cells per step")
+  p.add_argument("--lr", type=float, default=_DEFAULTS.lr_init,
+                 help=f"initial learning rate (decays exponentially to "
+                      f"{_DEFAULTS.lr_final:g} at step {_DEFAULTS.lr_decay_steps})")
+  p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
+                 help="steps between checkpoints")
+  p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
+  add_parallel_arguments(p)
+  add_config_option(p, "features")
+  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS,
+                       title="every other feature-field setting", helps=_HELPS, skip=(
+                           "stylize_scale", "steps", "batch_cells", "lr_init",
+                           "checkpoint_every", "seed"))
+  p.set_defaults(func=cmd_train)
+
+
+def cmd_train(args):
+  from msnerf_jax.train import features  # pylint: disable=g-import-not-at-top
+  shows = start_processes(args)
+  if not args.lr > 0:
+    raise UserError(f"--lr {args.lr}: must be positive")
+  if os.path.isfile(args.out):
+    raise UserError(f"{args.out}: is a file, expected a run folder")
+  built = config_lib.override(config_lib.FeatureConfig(
+      stylize_scale=args.stylize_scale, steps=args.steps, batch_cells=args.batch_cells,
+      lr_init=args.lr, checkpoint_every=args.checkpoint_every, seed=args.seed),
+      **config_overrides(args, config_lib.FeatureConfig))
+  config = start_config(args, "features", built, {"lr_init": "lr"})
+  summary = features.train(config, args.nerf, args.decoder, args.out, n_devices=args.devices,
+                           parallel=args.parallel, progress=shows)
+  if shows:
+    print_summary("feature training done", [
+        ("run", summary["run_dir"]),
+        ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
+        ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
+        ("last batch", f"MSE {summary.get('mse', float('nan')):.4f}, L1 "
+                       f"{summary.get('l1', float('nan')):.4f} (relu4_1)"),
+        ("next", f"msnerf render --run {args.out} --style STYLE.jpg --out "
+                 f"{os.path.join(args.out, 'video')}")])

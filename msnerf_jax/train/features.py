@@ -1,0 +1,264 @@
+"""Training a VGG feature field on a NeRF run's frozen geometry, top to bottom: the encoder's
+relu4_1 maps of the training views as targets (computed once, cached in the run), a batch of
+relu4_1 cells each averaged over jittered rays inside its 8 x 8 block, composited with the
+frozen NeRF's weights, lifted to 512 channels, L1 to the targets; Adam on the field alone."""
+
+import dataclasses
+import functools
+import os
+from typing import Any, Callable, Dict, Optional, Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax import config as config_lib
+from msnerf_jax import distributed
+from msnerf_jax import rays as rays_lib
+from msnerf_jax import render as render_lib
+from msnerf_jax import run_lock
+from msnerf_jax import runs as runs_lib
+from msnerf_jax import stylize as stylize_lib
+from msnerf_jax.adain import encode
+from msnerf_jax.config import FeatureConfig
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data.images import read_npy
+from msnerf_jax.data.scene import Scene
+from msnerf_jax.errors import UserError
+from msnerf_jax.feature_style import CELL, pooled_stats
+from msnerf_jax.files import write_npy
+from msnerf_jax.models import vgg
+from msnerf_jax.models.feature_field import FeatureFieldFn, init_feature_params
+from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.parallel import DataParallel, data_parallel
+from msnerf_jax.progress import progress_bar
+from msnerf_jax.train import loop as loop_lib
+from msnerf_jax.train import multistyle as multistyle_lib
+from msnerf_jax.train import nerf as nerf_lib
+from msnerf_jax.train import state as state_lib
+
+KIND = "features"
+LOSSES = ("mse", "l1")
+FROZEN = "nerf"  # params {"nerf": the NeRF run's params, "features": {"field", "lift"}}.
+TRAINED = "features"
+TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views.
+
+
+# ----------------------------------------------------------------------------- targets
+
+
+def view_targets(encoder, views, scale: int, progress: bool = False) -> np.ndarray:
+  """relu4_1 of each view [H, W, 3] enlarged `scale` times and padded to multiples of 8, as
+  stylize.stylize_image encodes it: [N, ceil(sH/8), ceil(sW/8), 512] float16."""
+  out = []
+  for view in progress_bar(views, desc="feature targets", disable=not progress, leave=False):
+    h, w = view.shape[:2]
+    big = stylize_lib.pad_to_multiple(images_lib.resize(np.asarray(view, np.float32),
+                                                        h * scale, w * scale), CELL)
+    out.append(np.asarray(encode(encoder, jnp.asarray(big[None]))["relu4_1"][0], np.float16))
+  return np.stack(out)
+
+
+def prepare_targets(run_dir: str, scene: Scene, config: FeatureConfig,
+                    progress: bool = False) -> None:
+  """Writes the run's target cache and the scene's content statistics (pooled over every
+  cell of every training view) unless they are there already."""
+  path = os.path.join(run_dir, TARGETS)
+  if os.path.exists(path) and os.path.exists(os.path.join(run_dir, runs_lib.CONTENT_STATS)):
+    return
+  views = scene.images[scene.split("train")]
+  targets = view_targets(vgg.load_vgg_params(), views, config.stylize_scale, progress)
+  write_npy(os.path.join(run_dir, runs_lib.CONTENT_STATS), np.stack(pooled_stats(targets)))
+  write_npy(path, targets)
+
+
+def load_targets(run_dir: str, n_views: int, shape: Tuple[int, int]) -> np.ndarray:
+  """The target cache [N, h, w, 512] float16 (prepare_targets), checked."""
+  return read_npy(os.path.join(run_dir, TARGETS),
+                  (n_views, *shape, vgg.LAYER_CHANNELS["relu4_1"])).astype(np.float16)
+
+
+# ----------------------------------------------------------------------------- state
+
+
+def split_frozen(params) -> Tuple[Dict, Dict]:
+  """(trainable, frozen) = (params["features"], params["nerf"])."""
+  return params[TRAINED], params[FROZEN]
+
+
+def merge(trainable, frozen) -> Dict:
+  return {FROZEN: frozen, TRAINED: trainable}
+
+
+def frozen_mask(params):
+  """True for every leaf of the NeRF (the optimizer's freeze mask)."""
+  trainable, frozen = split_frozen(params)
+  return merge(jax.tree_util.tree_map(lambda _: False, trainable),
+               jax.tree_util.tree_map(lambda _: True, frozen))
+
+
+def init_params(config: FeatureConfig, nerf_params) -> Dict:
+  """{"nerf": a copy of the NeRF run's params, "features": a fresh field and lift}."""
+  return merge(init_feature_params(config, config.scene_box, jax.random.PRNGKey(config.seed)),
+               jax.tree_util.tree_map(jnp.array, nerf_params))
+
+
+def init_state(config: FeatureConfig, nerf_params) -> state_lib.TrainState:
+  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
+                                               config.lr_decay_steps),
+                      frozen=frozen_mask, b2=0.99, eps=1e-15)
+  return state_lib.create_state(init_params(config, nerf_params), tx)
+
+
+# ----------------------------------------------------------------------------- the step
+
+
+def cell_features(params, rays, config: FeatureConfig):
+  """The lifted features of cells, each the mean over its rays_per_cell rays.
+
+  Args: params {"nerf", "features"}; rays: ray_bundle [B * R], cell by cell.
+  Returns: ([B, 512], complete [B] bool: every ray of the cell fitted the sampler's budget).
+  """
+  fn = FeatureFieldFn(config)
+  out = render_lib.render_feature_rays(NerfField(config.nerf), fn, params, rays, config.nerf,
+                                       config.top_k)
+  r = config.rays_per_cell
+  per_cell = lambda x: x.reshape(-1, r, *x.shape[1:])
+  features = jnp.mean(per_cell(out["features"]), 1)
+  acc = jnp.mean(per_cell(out["accumulation"]), 1)
+  return fn.lift(params[TRAINED], features, acc), jnp.all(per_cell(out["complete"]), 1)
+
+
+def loss_fn(trainable, frozen, batch, config: FeatureConfig):
+  """Mean L1 between the cells' lifted features and their targets (over complete cells)."""
+  params = merge(trainable, jax.lax.stop_gradient(frozen))
+  pred, complete = cell_features(params, batch["rays"], config)
+  diff = pred - batch["target"].astype(jnp.float32)
+  masked_mean = lambda e: jnp.sum(jnp.where(complete, e, 0.0)) / jnp.maximum(jnp.sum(complete), 1)
+  l1 = masked_mean(jnp.mean(jnp.abs(diff), -1))
+  mse = masked_mean(jnp.mean(jnp.square(diff), -1))
+  loss = l1 if config.loss == "l1" else mse
+  return loss, {"loss": loss, "l1": l1, "mse": mse}
+
+
+def train_step(state: state_lib.TrainState, batch, *, config: FeatureConfig,
+               axis_name: Optional[str] = None):
+  """One Adam step on the feature field; the NeRF comes out bit-identical (its arrays are
+  passed through, not updated by zero)."""
+  trainable, frozen = split_frozen(state.params)
+  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, config)
+  if axis_name is not None:
+    grads = jax.lax.pmean(grads, axis_name)
+    stats = jax.lax.pmean(stats, axis_name)
+  state = state.apply_gradients(grads=merge(grads, jax.tree_util.tree_map(jnp.zeros_like,
+                                                                          frozen)))
+  return state.replace(params=merge(split_frozen(state.params)[0], frozen)), stats
+
+
+def compile_train_step(config: FeatureConfig, parallel: DataParallel) -> Callable:
+  return parallel.compile(functools.partial(train_step, config=config))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "ndc", "shape"))
+def sample_batch(key, targets, c2w, K, config: FeatureConfig, ndc: bool, shape, near: float,
+                 far: float, coeffs=None):
+  """A random batch of relu4_1 cells of the training views, rays_per_cell jittered rays in
+  each (uniform over the cell's 8 x 8 block of the enlarged view).
+
+  Args:
+    targets: [N, h, w, 512] float16; c2w [N, 3, 4]; K [3, 3] or [N, 3, 3]; coeffs [N, 5]
+      or None; shape (H, W, focal) for NDC.
+  Returns:
+    {"rays": ray_bundle [B * R] (cell-major), "target": [B, 512] float16}.
+  """
+  n, h, w = targets.shape[:3]
+  b, r, s = config.batch_cells, config.rays_per_cell, config.stylize_scale
+  k_img, k_row, k_col, k_jit = jax.random.split(key, 4)
+  idx = jax.random.randint(k_img, (b,), 0, n)
+  rows = jax.random.randint(k_row, (b,), 0, h)
+  cols = jax.random.randint(k_col, (b,), 0, w)
+  u = jax.random.uniform(k_jit, (b, r, 2))
+  to_pixels = lambda cell, frac: (CELL * (cell[:, None] + frac)) / s - 0.5  # [B, R]
+  ray_idx = jnp.repeat(idx, r)
+  origins, directions = rays_lib.pixel_rays(
+      K[ray_idx] if K.ndim == 3 else K, c2w[ray_idx], to_pixels(rows, u[..., 0]).reshape(-1),
+      to_pixels(cols, u[..., 1]).reshape(-1), None if coeffs is None else coeffs[ray_idx])
+  rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, *shape)
+  return {"rays": rays, "target": targets[idx, rows, cols]}
+
+
+# ----------------------------------------------------------------------------- the loop
+
+
+def check_config(config: FeatureConfig, parallel: DataParallel) -> None:
+  """UserError naming the setting that cannot work."""
+  images_lib.check_scale(config.stylize_scale)
+  if config.width < 0:
+    raise UserError(f"features width {config.width}: must be >= 0")
+  for name in ("dim", "hash_levels", "hash_features", "rays_per_cell", "batch_cells",
+               "top_k", "steps"):
+    if getattr(config, name) < 1:
+      raise UserError(f"features {name} {getattr(config, name)}: must be >= 1")
+  if config.loss not in LOSSES:
+    raise UserError(f"features loss {config.loss!r}: unknown (choose from {', '.join(LOSSES)})")
+  if config.hash_table_size & (config.hash_table_size - 1):
+    raise UserError(f"features hash_table_size {config.hash_table_size}: must be a power of two")
+  if config.hash_max_res < config.hash_min_res:
+    raise UserError(f"features hash_max_res {config.hash_max_res}: below hash_min_res "
+                    f"{config.hash_min_res}")
+  nerf_lib.check_batch_splits(config.batch_cells, parallel)
+
+
+def check_same_nerf(run_dir: str, nerf_run_dir: str) -> None:
+  """UserError when run_dir is a feature run made on another NeRF run (its geometry and its
+  targets' views belong to that one)."""
+  if not os.path.exists(os.path.join(run_dir, runs_lib.RUN_FILE)):
+    return
+  made_on = runs_lib.read_run_file(run_dir, KIND).get("nerf_run")
+  if made_on and os.path.abspath(made_on) != os.path.abspath(nerf_run_dir):
+    raise UserError(f"{os.path.join(run_dir, runs_lib.RUN_FILE)}: a feature run made on the "
+                    f"NeRF run {made_on}, not {os.path.abspath(nerf_run_dir)}; use another "
+                    "--out")
+
+
+@run_lock.released_after
+def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: str,
+          n_devices: Optional[int] = None, progress: bool = True,
+          callback: Optional[Callable[[int, Any], None]] = None, parallel: str = "shard_map"
+          ) -> Dict[str, Any]:
+  """Trains (or resumes) a feature field in `run_dir` on the NeRF run's frozen geometry.
+
+  `config.nerf` becomes the NeRF run's config and `config.scene_box` its scene box; the
+  decoder run (`msnerf adain train`) is checked against this build's encoder (the targets
+  are that encoder's features) and recorded for rendering. Devices and processes as
+  nerf.train's. Returns the loop's summary dict.
+  """
+  check_same_nerf(run_dir, nerf_run_dir)
+  nerf_run, scene, data = multistyle_lib.load_nerf_run(nerf_run_dir)
+  stylize_lib.load_decoder(decoder_dir)  # refuses another encoder's decoder, up front.
+  box = config.scene_box or nerf_run.config.scene_box or nerf_lib.scene_box(scene)
+  config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
+  devices = data_parallel(n_devices, parallel)
+  check_config(config, devices)
+  record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
+            "nerf_run": os.path.abspath(nerf_run_dir), "decoder": os.path.abspath(decoder_dir)}
+  distributed.check_same(record, "settings")
+
+  def prepare():
+    runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
+    prepare_targets(run_dir, scene, config, progress)
+  distributed.primary_first(prepare)
+  train_idx = scene.split("train")
+  cells = tuple(-(-n * config.stylize_scale // CELL) for n in (scene.height, scene.width))
+  targets = jnp.asarray(load_targets(run_dir, len(train_idx), cells))
+  c2w = jnp.asarray(scene.c2w[train_idx])
+  K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
+  base_key = jax.random.PRNGKey(config.seed)
+  shape = (scene.height, scene.width, scene.focal)
+  return loop_lib.fit(
+      init_state(config, nerf_run.params), compile_train_step(config, devices),
+      lambda step: sample_batch(jax.random.fold_in(base_key, step), targets, c2w, K, config,
+                                scene.ndc, shape, scene.near, scene.far, coeffs),
+      run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
+      keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="features train",
+      progress=progress, callback=callback, shown=("mse", "l1"))

@@ -1,0 +1,324 @@
+"""The VGG feature field (AdaIN in 3D): the stylization is affine and commutes with
+compositing, the NeRF stays frozen, sweeps equal single renders, training resumes bit for
+bit, and bad input gets one line."""
+
+import dataclasses
+import functools
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import msnerf_jax
+from msnerf_jax import cli
+from msnerf_jax import runs
+from msnerf_jax.config import DataConfig, FeatureConfig
+from msnerf_jax.data.scene import load_scene
+from msnerf_jax.errors import UserError
+from msnerf_jax.feature_style import (cell_grid, pooled_stats, style_vector_of_stats,
+                                     stylize_features)
+from msnerf_jax.train import features
+from msnerf_jax.train import nerf
+
+from conftest import fake_decoder, write_blender_scene
+from test_fast_trunk import TINY_FAST
+from test_multistyle import write_style
+from test_train_nerf import TINY
+
+# A small field: 4 levels of 2^10 entries, an 8-channel feature.
+TINY_FEATURES = FeatureConfig(dim=8, width=16, hash_levels=4, hash_table_size=2 ** 10,
+                              hash_min_res=4, hash_max_res=32, top_k=4, stylize_scale=2,
+                              rays_per_cell=2, batch_cells=8, steps=4, checkpoint_every=2,
+                              lr_init=1e-2)
+
+
+def leaves(tree):
+  return jax.tree_util.tree_leaves(tree)
+
+
+# ----------------------------------------------------------------------------- pure parts
+
+
+def test_stylizing_the_composite_equals_compositing_the_stylized_samples():
+  rng = np.random.default_rng(0)
+  c = 16
+  samples = jnp.asarray(rng.normal(size=(5, 7, c)), jnp.float32)  # [rays, samples, C]
+  weights = jnp.asarray(rng.uniform(0, 0.2, size=(5, 7)), jnp.float32)  # sums below 1
+  content = (jnp.asarray(rng.normal(size=c), jnp.float32),
+             jnp.asarray(rng.uniform(0.5, 2, size=c), jnp.float32))
+  style = (jnp.asarray(rng.normal(size=c), jnp.float32),
+           jnp.asarray(rng.uniform(0.5, 2, size=c), jnp.float32))
+  for alpha in (1.0, 0.4):
+    per_sample = stylize_features(samples, jnp.ones((5, 7)), content, style, alpha)
+    composited_after = jnp.sum(weights[..., None] * per_sample, 1)
+    composite = jnp.sum(weights[..., None] * samples, 1)
+    before = stylize_features(composite, jnp.sum(weights, 1), content, style, alpha)
+    np.testing.assert_allclose(before, composited_after, atol=1e-5)
+  # alpha = 0: the features themselves.
+  np.testing.assert_allclose(stylize_features(samples, jnp.ones((5, 7)), content, style, 0.0),
+                             samples, atol=1e-5)
+
+
+def test_a_style_sweep_under_vmap_equals_single_stylizations():
+  rng = np.random.default_rng(1)
+  f = jnp.asarray(rng.normal(size=(3, 4, 8)), jnp.float32)
+  acc = jnp.asarray(rng.uniform(size=(3, 4)), jnp.float32)
+  content = (jnp.zeros(8), jnp.ones(8))
+  means = jnp.asarray(rng.normal(size=(5, 8)), jnp.float32)
+  stds = jnp.asarray(rng.uniform(0.5, 2, size=(5, 8)), jnp.float32)
+  sweep = jax.jit(jax.vmap(lambda m, s: stylize_features(f, acc, content, (m, s))))(means, stds)
+  for k in range(5):
+    np.testing.assert_allclose(sweep[k], stylize_features(f, acc, content, (means[k], stds[k])),
+                               atol=1e-6)
+
+
+def test_cells_average_rays_inside_their_8x8_block_of_the_enlarged_view():
+  rows, cols = cell_grid(10, 12, 4, per_side=2)
+  assert rows.shape == (5, 6, 4) == cols.shape  # ceil(40 / 8) x ceil(48 / 8) cells
+  # Cell (1, 2) covers the enlarged view's pixels [8, 16) x [16, 24), i.e. the view's
+  # [2, 4) x [4, 6) in edge coordinates: its rays' centre is at pixel (2.5, 4.5).
+  assert np.allclose(rows[1, 2].mean() + 0.5, 3.0) and np.allclose(cols[1, 2].mean() + 0.5, 5.0)
+  assert rows[1, 2].min() > 2 - 0.5 and rows[1, 2].max() < 4 - 0.5
+
+
+def test_pooled_stats_are_those_of_all_positions():
+  rng = np.random.default_rng(2)
+  maps = [rng.normal(size=(3, 4, 6)), rng.normal(size=(2, 5, 6)) + 1.0]
+  mean, std = pooled_stats(maps)
+  flat = np.concatenate([m.reshape(-1, 6) for m in maps])
+  np.testing.assert_allclose(mean, flat.mean(0), rtol=1e-5)
+  np.testing.assert_allclose(std, flat.std(0, ddof=1) + 1e-8, rtol=1e-5)
+
+
+# ----------------------------------------------------------------------------- training
+
+
+@pytest.fixture(scope="module")
+def feature_world(tmp_path_factory):
+  """A tiny scene, an MLP NeRF run (6 steps) and a fast one, a fake decoder, and a feature
+  run on the MLP NeRF trained through the CLI."""
+  root = tmp_path_factory.mktemp("features")
+  scene_dir = write_blender_scene(str(root / "scene"), n_train=4, n_val=2, size=16)
+  scene, data = load_scene(DataConfig(path=scene_dir))
+  nerf_run = str(root / "nerf")
+  nerf.train(scene, TINY, data, nerf_run, progress=False)
+  decoder = fake_decoder(root / "decoder")
+  run = str(root / "ff")
+  assert cli.main(["features", "train", "--nerf", nerf_run, "--decoder", decoder, "--out", run,
+                   "--stylize-scale", "2", "--steps", "4", "--batch-cells", "8",
+                   "--checkpoint-every", "2", "--dim", "8", "--width", "16",
+                   "--hash-levels", "4", "--hash-table-size", "1024", "--hash-min-res", "4",
+                   "--hash-max-res", "32", "--top-k", "4", "--rays-per-cell", "2"]) == 0
+  return {"root": root, "scene_dir": scene_dir, "scene": scene, "data": data, "nerf": nerf_run,
+          "decoder": decoder, "run": run}
+
+
+def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(feature_world):
+  from msnerf_jax import checkpoint  # pylint: disable=g-import-not-at-top
+  run = msnerf_jax.load_run(feature_world["run"])
+  source = msnerf_jax.load_run(feature_world["nerf"])
+  assert run.kind == "features" and set(run.params) == {"nerf", "features"}
+  for a, b in zip(leaves(run.params["nerf"]), leaves(source.params)):
+    assert np.array_equal(np.asarray(a).view(np.uint32), np.asarray(b).view(np.uint32))
+  start = features.init_params(run.config, source.params)["features"]
+  assert any(not np.array_equal(a, b) for a, b in zip(leaves(run.params["features"]),
+                                                       leaves(start)))
+  ckpts = checkpoint.Checkpoints(feature_world["run"])
+  raw = ckpts.restore()
+  ckpts.close()
+  paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(raw["opt_state"])]
+  assert paths and all("nerf" not in p for p in paths)
+  assert any("tables" in p for p in paths)
+
+
+def test_targets_are_cached_and_the_content_stats_pooled_over_them(feature_world):
+  run_dir = feature_world["run"]
+  targets = np.load(os.path.join(run_dir, features.TARGETS))
+  assert targets.shape == (4, 4, 4, 512) and targets.dtype == np.float16  # 16 px x 2 / 8
+  mean, std = runs.content_stats(run_dir)
+  want = pooled_stats(list(targets.astype(np.float32)))
+  np.testing.assert_allclose(mean, want[0], rtol=1e-4, atol=1e-5)
+  np.testing.assert_allclose(std, want[1], rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("sampler", ["hierarchical", "grid"])
+def test_training_lowers_the_l1_on_a_fixed_batch(feature_world, sampler, tmp_path):
+  scene, data = feature_world["scene"], feature_world["data"]
+  if sampler == "grid":
+    nerf_run = str(tmp_path / "fast")
+    nerf.train(scene, dataclasses.replace(TINY_FAST, steps=6), data, nerf_run, progress=False)
+  else:
+    nerf_run = feature_world["nerf"]
+  source = msnerf_jax.load_run(nerf_run)
+  config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5, batch_cells=16)
+  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], features.TARGETS)))
+  args = (jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, False,
+          (scene.height, scene.width, scene.focal), scene.near, scene.far)
+  fixed = features.sample_batch(jax.random.PRNGKey(123), targets, *args)
+  loss = jax.jit(features.loss_fn, static_argnums=3)
+  state = features.init_state(config, source.params)
+  first = float(loss(state.params["features"], state.params["nerf"], fixed, config)[0])
+  step = jax.jit(functools.partial(features.train_step, config=config))
+  for i in range(30):
+    state, _ = step(state, features.sample_batch(jax.random.PRNGKey(i), targets, *args))
+  last = float(loss(state.params["features"], state.params["nerf"], fixed, config)[0])
+  assert last < 0.8 * first, (first, last)
+
+
+def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_features(
+    feature_world):
+  from msnerf_jax import stylize, views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.feature_style import decode_styles  # pylint: disable=g-import-not-at-top
+  run = msnerf_jax.load_run(feature_world["run"])
+  scene = feature_world["scene"]
+  decoder = stylize.load_decoder(feature_world["decoder"])
+  stats = runs.content_stats(feature_world["run"])
+  rng = np.random.default_rng(3)
+  styles = np.concatenate([rng.uniform(0, 2, (3, 512)), rng.uniform(0.5, 2, (3, 512))], 1)
+  camera = scene.c2w[4]
+  sweep = views.render_feature_styles(scene, run.params, run.config, camera, decoder, stats,
+                                      styles)
+  assert sweep.shape == (3, 16, 16, 3)
+  for k in range(3):
+    one = views.render_feature_styles(scene, run.params, run.config, camera, decoder, stats,
+                                      styles[k:k + 1])
+    np.testing.assert_allclose(sweep[k], one[0], atol=1e-5)
+  assert float(np.abs(sweep[0] - sweep[1]).max()) > 1e-4
+  # The scene's own statistics as the style: the decoder's picture of the plain features.
+  fmap = views.render_feature_map(scene, run.params, run.config, camera)
+  plain = decode_styles(decoder, fmap["features"], np.ones((4, 4)), stats, stats[0][None],
+                        stats[1][None], 0.0, 16, 16, 2)
+  original = views.render_feature_styles(scene, run.params, run.config, camera, decoder, stats,
+                                         style_vector_of_stats(stats))
+  np.testing.assert_allclose(original, plain, atol=1e-5)
+
+
+def test_msnerf_render_paints_a_feature_run_in_any_style_image(feature_world, tmp_path):
+  style = write_style(tmp_path / "red.png", (200, 30, 30))
+  out = str(tmp_path / "video")
+  assert cli.main(["render", "--run", feature_world["run"], "--out", out, "--style", style,
+                   "--frames", "2", "--morph", style, "original", "--grid-steps", "2",
+                   "--grid-views", "1"]) == 0
+  assert os.path.getsize(out + ".mp4") > 0 and os.path.exists(out + "_grid.png")
+
+
+def test_feature_resume_is_bit_identical(feature_world, tmp_path):
+  nerf_run, decoder = feature_world["nerf"], feature_world["decoder"]
+  full, split = str(tmp_path / "full"), str(tmp_path / "split")
+  features.train(TINY_FEATURES, nerf_run, decoder, full, progress=False)
+  features.train(dataclasses.replace(TINY_FEATURES, steps=2), nerf_run, decoder, split,
+                 progress=False)
+  assert features.train(TINY_FEATURES, nerf_run, decoder, split,
+                        progress=False)["resumed_from"] == 2
+  a, b = msnerf_jax.load_run(full), msnerf_jax.load_run(split)
+  for x, y in zip(leaves(a.params), leaves(b.params)):
+    np.testing.assert_array_equal(x, y)
+
+
+TWO_DEVICES = textwrap.dedent("""
+    import os, sys
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    import dataclasses, jax, numpy as np, jax.numpy as jnp
+    import msnerf_jax
+    from msnerf_jax.config import DataConfig
+    from msnerf_jax.data.scene import load_scene
+    from msnerf_jax.parallel import data_parallel
+    from msnerf_jax.train import features
+    sys.path.insert(0, {tests!r})
+    from test_feature_field import TINY_FEATURES
+    scene, _ = load_scene(DataConfig(path={scene!r}))
+    source = msnerf_jax.load_run({nerf!r})
+    config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5)
+    targets = jnp.asarray(np.load({targets!r}))
+    def run(dp):
+      state = dp.put_state(features.init_state(config, source.params))
+      step = features.compile_train_step(config, dp)
+      for i in range(4):
+        batch = features.sample_batch(jax.random.PRNGKey(i), targets, jnp.asarray(scene.c2w[:4]),
+                                      jnp.asarray(scene.K), config, False,
+                                      (scene.height, scene.width, scene.focal), 2.0, 6.0)
+        state, stats = step(state, dp.put_batch(batch))
+      return dp.to_host(state)
+    one, two = run(data_parallel(1)), run(data_parallel(2))
+    start = features.init_state(config, source.params).params["features"]
+    diff = lambda a, b: max(float(np.max(np.abs(np.asarray(x) - np.asarray(y))))
+                            for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+    moved, worst = diff(one.params["features"], start), diff(one.params["features"], two.params["features"])
+    print("worst", worst, "moved", moved)
+    assert moved > 1e-4 and worst < 1e-3 * moved, (worst, moved)
+    assert diff(one.params["nerf"], two.params["nerf"]) == 0.0
+""")
+
+
+@pytest.mark.slow  # a subprocess with two compilations
+def test_two_devices_give_the_same_feature_steps_as_one(feature_world):
+  tests = os.path.dirname(os.path.abspath(__file__))
+  code = TWO_DEVICES.format(tests=tests, scene=feature_world["scene_dir"],
+                            nerf=feature_world["nerf"],
+                            targets=os.path.join(feature_world["run"], features.TARGETS))
+  result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+  assert result.returncode == 0, result.stdout + result.stderr[-3000:]
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_a_feature_run_pointed_at_another_nerf_run_is_refused(feature_world, tmp_path, capsys):
+  scene, data = feature_world["scene"], feature_world["data"]
+  other = str(tmp_path / "other_nerf")
+  nerf.train(scene, dataclasses.replace(TINY, steps=2), data, other, progress=False)
+  run = feature_world["run"]
+  before = {f: os.path.getmtime(os.path.join(run, f)) for f in os.listdir(run)}
+  assert cli.main(["features", "train", "--nerf", other, "--decoder", feature_world["decoder"],
+                   "--out", run, "--config", run]) == 2
+  err = capsys.readouterr().err.strip().splitlines()[-1]
+  assert err.startswith("msnerf: error:") and "made on the NeRF run" in err, err
+  assert {f: os.path.getmtime(os.path.join(run, f)) for f in os.listdir(run)} == before
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"stylize_scale": 0}, "--stylize-scale 0: must be a whole number"),
+    ({"stylize_scale": 1.5}, "--stylize-scale 1.5: must be a whole number"),
+    ({"hash_table_size": 1000}, "hash_table_size 1000: must be a power of two"),
+    ({"dim": 0}, "features dim 0: must be >= 1"),
+])
+def test_a_feature_setting_that_cannot_work_is_named(change, message):
+  from msnerf_jax.parallel import data_parallel  # pylint: disable=g-import-not-at-top
+  with pytest.raises(UserError, match=message):
+    features.check_config(dataclasses.replace(TINY_FEATURES, **change), data_parallel(1))
+
+
+def test_bad_style_images_and_decoders_get_one_line(feature_world, tmp_path, capsys):
+  from PIL import Image  # pylint: disable=g-import-not-at-top
+  tiny = str(tmp_path / "tiny.png")
+  Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tiny)
+  broken = str(tmp_path / "broken.jpg")
+  with open(broken, "wb") as f:
+    f.write(b"not an image")
+  out = str(tmp_path / "v")
+  for style, words in ((tiny, "16x16"), (broken, broken)):
+    assert cli.main(["render", "--run", feature_world["run"], "--out", out, "--style", style,
+                     "--frames", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("msnerf: error:") and words in err, err
+  assert cli.main(["render", "--run", feature_world["run"], "--out", out, "--frames", "1"]) == 2
+  assert "--style" in capsys.readouterr().err
+  # A decoder of another encoder: refused before anything is written.
+  import json  # pylint: disable=g-import-not-at-top
+  other = str(tmp_path / "decoder")
+  fake_decoder(other)
+  record = json.load(open(os.path.join(other, "run.json")))
+  record["config"]["encoder"] = "vgg19-pytorch"
+  json.dump(record, open(os.path.join(other, "run.json"), "w"))
+  new = str(tmp_path / "ff_new")
+  assert cli.main(["features", "train", "--nerf", feature_world["nerf"], "--decoder", other,
+                   "--out", new, "--steps", "1"]) == 2
+  assert "vgg19-pytorch" in capsys.readouterr().err
+  assert not os.path.exists(new)
+  assert not any(f.startswith("v") for f in os.listdir(tmp_path) if f != "decoder")
