@@ -358,6 +358,17 @@ def _render_call_grid(field_fn, params, grid, config, white_background, mesh, pi
           "complete": complete}
 
 
+def flat_rays(rays: Dict[str, jnp.ndarray]):
+  """(leading shape, the rays as numpy [N, ...], a padding ray [1, ...]) of rays of any
+  leading shape. The padding ray has zero length (far = near): it takes no samples from
+  anyone's budget."""
+  shape = rays["origins"].shape[:-1]
+  flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
+  blank = {k: v[:1] for k, v in flat.items()}
+  blank["far"] = blank["near"]
+  return shape, flat, blank
+
+
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
                  white_background: bool = False, chunk: Optional[int] = None,
                  styles: Optional[jnp.ndarray] = None, mesh: Optional[Mesh] = None
@@ -395,13 +406,9 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   else:  # on the device once, not once per call
     params, styles = jax.device_put((params, styles), mesh.devices.flat[0])
   per_call = chunk * mesh.size
-  shape = rays["origins"].shape[:-1]
-  flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
+  shape, flat, blank = flat_rays(rays)
   n = flat["origins"].shape[0]
   axis = 0 if styles is None else 1  # where the ray axis of the outputs is.
-  # A padding ray of zero length (far = near): it takes no samples from anyone's budget.
-  blank = {k: v[:1] for k, v in flat.items()}
-  blank["far"] = blank["near"]
   outputs: Dict[str, np.ndarray] = {}
   pending = np.arange(n)
   while pending.size:
@@ -485,11 +492,8 @@ def render_feature_image(field, feature_fn, params, rays: Dict[str, jnp.ndarray]
   if grid is not None and config.mlp_chunk == 0:  # forward only: chunks are cheap.
     config = dataclasses.replace(config, mlp_chunk=RENDER_MLP_CHUNK)
   params = jax.device_put(params)
-  shape = rays["origins"].shape[:-1]
-  flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
+  shape, flat, blank = flat_rays(rays)
   n = flat["origins"].shape[0]
-  blank = {k: v[:1] for k, v in flat.items()}
-  blank["far"] = blank["near"]
   parts = []
   for start in range(0, n, chunk):
     size = min(chunk, n - start)
