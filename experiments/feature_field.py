@@ -1,7 +1,7 @@
 """The feature field (AdaIN in 3D) against per-frame AdaIN, with the same decoder and scale.
 
   python experiments/feature_field.py --features FEATURE_RUN --styles A.jpg B.jpg ... \
-      [--frames 40] [--out DIR]
+      [--frames 40] [--decoder ADAIN_RUN] [--stats rendered|encoded] [--out DIR]
 
 Along the scene's render path (its NeRF renders the geometry and the photo-real frames):
   per-frame:  each photo-real frame stylized on its own (stylize.stylize_image, the run's
@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 from msnerf_jax import adain, consistency, metrics, stylize, video, views
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.feature_style import decode_styles, style_vector_of_stats
+from msnerf_jax.feature_style import decode_styles, painted_size, style_vector_of_stats
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import content_stats, load_run, load_run_and_scene
+from msnerf_jax.runs import CONTENT_STATS, content_stats, load_run, load_run_and_scene
 
 
 def whiten(frame, acc, white):
@@ -70,14 +70,24 @@ def main():
   parser.add_argument("--styles", nargs="+", required=True, help="style images")
   parser.add_argument("--frames", type=int, default=40, help="frames of the render path")
   parser.add_argument("--heldout", type=int, default=5, help="held-out views for alpha = 0")
+  parser.add_argument("--decoder", default=None,
+                      help="the AdaIN run that paints both methods (default: the feature run's; "
+                           "the field's targets are the encoder's, so any decoder of that "
+                           "encoder fits, e.g. one trained without some of the styles)")
+  parser.add_argument("--stats", choices=("rendered", "encoded"), default="rendered",
+                      help="content statistics the field's features are normalised by: of its "
+                           "renders of the training views (the library's), or the encoder's "
+                           "of the training views (before 2 December 2026)")
   parser.add_argument("--out", default=None, help="output folder (default: RUN/compare)")
   args = parser.parse_args()
   t0 = time.time()
   run, scene = load_run_and_scene(args.features, "features")
   nerf = load_run(run.record["nerf_run"], "nerf")
-  decoder = stylize.load_decoder(run.record["decoder"])
+  decoder_dir = args.decoder or run.record["decoder"]
+  decoder = stylize.load_decoder(decoder_dir)
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
-  stats = content_stats(args.features)
+  stats = content_stats(run) if args.stats == "rendered" else tuple(
+      np.load(os.path.join(args.features, CONTENT_STATS)))
   scale = run.config.stylize_scale
   out_dir = args.out or os.path.join(args.features, "compare")
   lp = lambda a, b: np.asarray(metrics.lpips(lpips_params, jnp.asarray(a), jnp.asarray(b)))
@@ -87,7 +97,7 @@ def main():
           tqdm(poses, desc="NeRF path", leave=False)]
   fmaps = [views.render_feature_map(scene, run.params, run.config, c2w) for c2w in
            tqdm(poses, desc="feature path", leave=False)]
-  ph, pw = [-(-n * scale // 8) * 8 for n in (scene.height, scene.width)]
+  ph, pw = painted_size(scene.height, scene.width, scale)
   pictures = [images_lib.read_image(p, max_side=1024) for p in args.styles]
   names = [os.path.splitext(os.path.basename(p))[0] for p in args.styles]
   crops = [stylize.cover_crop(p, ph, pw) for p in pictures]
@@ -166,6 +176,7 @@ def main():
             "alpha0_psnr": agree, "alpha0_psnr_mean": float(np.mean(agree)), **timing,
             "switch_ratio": timing["feature_switch_s"] / timing["per_frame_s"],
             "run": os.path.abspath(args.features), "step": run.step, "frames": args.frames,
+            "decoder": os.path.abspath(decoder_dir), "stats": args.stats,
             "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
                         f"jax {jax.__version__} on {jax.devices()[0].platform}",
             "seconds": time.time() - t0}

@@ -1,6 +1,7 @@
 """Frozen configuration dataclasses, presets, and their JSON round trip."""
 
 import dataclasses
+import functools
 from typing import Any, Dict, Optional, Type, TypeVar
 
 from msnerf_jax.errors import UserError
@@ -154,24 +155,34 @@ TRUNKS = ("mlp", "hash")
 SAMPLERS = ("hierarchical", "grid")
 
 
+def bad_setting(config: Any, name: str, problem: str) -> None:
+  """Raises UserError `--NAME VALUE: problem` (the option that sets config.NAME)."""
+  raise UserError(f"--{name.replace('_', '-')} {getattr(config, name)}: {problem}")
+
+
+def check_hash_settings(config: Any) -> None:
+  """UserError naming the first hash-grid setting (hash_levels, hash_features,
+  hash_table_size, hash_min_res, hash_max_res) of a config that cannot work."""
+  for name in ("hash_levels", "hash_features", "hash_min_res"):
+    if getattr(config, name) < 1:
+      bad_setting(config, name, "must be >= 1")
+  t = config.hash_table_size
+  if t < 2 or t & (t - 1):
+    bad_setting(config, "hash_table_size", "must be a power of two (>= 2)")
+  if config.hash_max_res < config.hash_min_res:
+    bad_setting(config, "hash_max_res", f"finest resolution below the coarsest (--hash-min-res "
+                                        f"{config.hash_min_res})")
+
+
 def check_nerf_config(config: NerfConfig) -> None:
   """UserError naming the first setting of a NerfConfig that cannot work."""
-  def bad(name, problem):
-    raise UserError(f"--{name.replace('_', '-')} {getattr(config, name)}: {problem}")
+  bad = functools.partial(bad_setting, config)
   if config.trunk not in TRUNKS:
     bad("trunk", f"unknown trunk (choose from {', '.join(TRUNKS)})")
   if config.sampler not in SAMPLERS:
     bad("sampler", f"unknown sampler (choose from {', '.join(SAMPLERS)})")
   if config.trunk == "hash":
-    for name in ("hash_levels", "hash_features", "hash_min_res"):
-      if getattr(config, name) < 1:
-        bad(name, "must be >= 1")
-    t = config.hash_table_size
-    if t < 2 or t & (t - 1):
-      bad("hash_table_size", "must be a power of two (>= 2)")
-    if config.hash_max_res < config.hash_min_res:
-      bad("hash_max_res", f"finest resolution below the coarsest (--hash-min-res "
-                          f"{config.hash_min_res})")
+    check_hash_settings(config)
   if config.scene_box < 0:
     bad("scene_box", "must be >= 0 (0 = from the scene)")
   if config.sampler == "grid":

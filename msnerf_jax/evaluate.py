@@ -27,7 +27,6 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from msnerf_jax import adain as adain_lib
 from msnerf_jax import consistency as consistency_lib
 from msnerf_jax import metrics
 from msnerf_jax import files
@@ -36,10 +35,10 @@ from msnerf_jax import video
 from msnerf_jax.config import MultistyleConfig, NerfConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
-from msnerf_jax.data.stylized import StylizedData, read_manifest
+from msnerf_jax.data.stylized import StylizedData, read_manifest, style_vector_of
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.feature_style import style_vector_of_stats
+from msnerf_jax.feature_style import painted_size, style_vector_of_stats
 from msnerf_jax.runs import content_stats, load_run, scene_of, style_vectors
 from msnerf_jax.views import render_feature_styles, render_styles, render_view
 from msnerf_jax.progress import progress_bar
@@ -127,34 +126,36 @@ def per_frame_adain(decoder, encoder, base: Sequence[Dict[str, np.ndarray]], sty
   return frames
 
 
-def feature_field_frames(field, scene, base, base_nerf: str, encoder, picture: np.ndarray,
-                         alpha: float, chunk: Optional[int] = None, progress: bool = False):
-  """(frames, geometry) of a loaded feature run along the path `base` was rendered on: the
-  style's statistics from the picture cover-cropped to the decoded size (as per-frame AdaIN
-  crops it), at strength alpha (a blend towards the scene's own statistics), the features
-  painted by the run's decoder; on white-background scenes the background is put back to
-  white by the NeRF's opacity, as per_frame_adain does. The geometry is `base`'s when the
-  field was trained on that NeRF run (`base_nerf`), else its own NeRF's renders."""
+def feature_field_frames(field, scene, base, base_nerf: str, encoder,
+                         pictures: Sequence[np.ndarray], alphas: Sequence[float],
+                         chunk: Optional[int] = None, progress: bool = False):
+  """(frames [K][P], geometry [P]) of a loaded feature run in K styles along the P cameras
+  `base` was rendered on, one feature render per camera: each style's statistics from its
+  picture cover-cropped to the decoded size (as per-frame AdaIN crops it), at its strength
+  alpha (a blend towards the scene's own statistics), the features painted by the run's
+  decoder; on white-background scenes the background is put back to white by the NeRF's
+  opacity, as per_frame_adain does. The geometry is `base`'s when the field was trained on
+  that NeRF run (`base_nerf`), else its own NeRF's renders."""
   decoder = stylize_lib.load_decoder(field.record["decoder"])
-  stats = content_stats(field.run_dir)
-  s = field.config.stylize_scale
-  crop = stylize_lib.cover_crop(picture, -(-scene.height * s // 8) * 8,
-                                -(-scene.width * s // 8) * 8)
-  vector = np.asarray(adain_lib.style_vector(encoder, crop))
-  vector = alpha * vector + (1.0 - alpha) * style_vector_of_stats(stats)
+  stats = content_stats(field)
+  size = painted_size(scene.height, scene.width, field.config.stylize_scale)
+  vectors = np.stack([alpha * style_vector_of(encoder, p, size)
+                      + (1.0 - alpha) * style_vector_of_stats(stats)
+                      for p, alpha in zip(pictures, alphas)])
   geometry = base
   if os.path.abspath(field.record["nerf_run"]) != os.path.abspath(base_nerf):
     geometry = [render_view(scene, field.params["nerf"], field.config.nerf, b["pose"], chunk)
                 for b in base]
-  frames = []
+  frames = [[] for _ in vectors]
   for b, g in zip(progress_bar(base, desc="feature-field path", disable=not progress,
                                leave=False), geometry):
-    frame = render_feature_styles(scene, field.params, field.config, b["pose"], decoder, stats,
-                                  vector[None], chunk)[0]
+    sweep = render_feature_styles(scene, field.params, field.config, b["pose"], decoder, stats,
+                                  vectors, chunk)
     if scene.white_background:
       acc = g["accumulation"][..., None]
-      frame = frame * acc + (1.0 - acc)
-    frames.append(frame)
+      sweep = sweep * acc + (1.0 - acc)
+    for k, frame in enumerate(sweep):
+      frames[k].append(frame)
   return frames, geometry
 
 
@@ -235,9 +236,14 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   swept = [[render_styles(scene, r.params, r.config, c2w, s, chunk)
             for c2w in progress_bar(poses, desc=f"{m} path", disable=not progress, leave=False)]
            for r, s, m in zip(runs, stack, methods)]
+  pictures = [images_lib.read_image(sources[n]["source"], max_side=1024) for n in names]
+  # Every style from one feature render per view, for each feature run.
+  painted = [feature_field_frames(field, scene, base, run.record["nerf_run"], encoder, pictures,
+                                  [sources[n]["alpha"] for n in names], chunk, progress)
+             for field in fields]
   rows, figure_rows = [], []
   for m, name in enumerate(progress_bar(names, desc="scoring styles", disable=not progress)):
-    picture = images_lib.read_image(sources[name]["source"], max_side=1024)
+    picture = pictures[m]
     style = stylize_lib.cover_crop(picture, scene.height, scene.width)  # what distances use.
     per_frame = per_frame_adain(decoder, encoder, base, picture, sources[name]["alpha"],
                                 scene.white_background, manifest["stylize_scale"])
@@ -250,11 +256,9 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                  for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
                                  leave=False)]
       candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))
-    for i, field in enumerate(fields):
-      label = "feature-field" + (f"#{i + 1}" if len(fields) > 1 else "")
-      candidates.append((label, *feature_field_frames(
-          field, scene, base, run.record["nerf_run"], encoder, picture,
-          sources[name]["alpha"], chunk, progress)))
+    for i, (frames_k, geometry) in enumerate(painted):
+      label = "feature-field" + (f"#{i + 1}" if len(painted) > 1 else "")
+      candidates.append((label, frames_k[m], geometry))
     candidates.append(("adain-per-frame", per_frame, base))
     for label, frames_, geometry in candidates:
       rows.append({"method": label, "style": name,

@@ -60,6 +60,12 @@ def style_vector_of_stats(stats: Stats) -> np.ndarray:
   return np.concatenate([np.ravel(stats[0]), np.ravel(stats[1])]).astype(np.float32)
 
 
+def painted_size(height: int, width: int, scale: int) -> Tuple[int, int]:
+  """(height, width) the decoder paints a view of height x width at stylize scale `scale`:
+  enlarged and padded to whole cells (what per-frame AdaIN crops a style picture to)."""
+  return -(-height * scale // CELL) * CELL, -(-width * scale // CELL) * CELL
+
+
 def cell_grid(height: int, width: int, scale: int, per_side: int = 2
               ) -> Tuple[np.ndarray, np.ndarray]:
   """Sub-pixel positions of the rays a relu4_1 cell averages: an image of height x width

@@ -1,4 +1,5 @@
-"""Every stage in one call: AdaIN decoder -> NeRF -> stylized dataset -> multi-style NeRF -> renders.
+"""Every stage in one call: AdaIN decoder -> NeRF -> stylized dataset -> multi-style NeRF ->
+feature field -> renders.
 
 Each stage writes one subfolder of the output folder:
 
@@ -6,9 +7,12 @@ Each stage writes one subfolder of the output folder:
   adain/       the AdaIN decoder run            (skipped when a decoder run is given)
   nerf/        the NeRF run
   stylized/    the stylized dataset (every view in every style, plus the original)
-  multistyle/  the multi-style NeRF run
+  multistyle/  the multi-style NeRF run (the paper's model)
+  features/    the feature-field run (AdaIN in 3D; skipped with features_steps 0)
   renders/     styles.mp4/.gif (all styles side by side along the orbit), morph.mp4/.gif (one
-               orbit whose style morphs through the styles) and grid.png (styles x views)
+               orbit whose style morphs through the styles), features.mp4/.gif (as styles.mp4,
+               painted by the feature field) and grid.png (styles x views, the paper's model and
+               the feature field side by side)
 
 plus pipeline.json (what each stage was run with) and summary.json / summary.txt.
 
@@ -23,7 +27,7 @@ import json
 import os
 import shutil
 import time
-from typing import Any, Callable, Dict, Optional, Sequence
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -33,7 +37,7 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
 
 RECORD = "pipeline.json"
-STAGES = ("adain", "nerf", "stylized", "multistyle", "renders")
+STAGES = ("adain", "nerf", "stylized", "multistyle", "features", "renders")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +58,8 @@ class Settings:
   nerf_batch_rays: int = 0  # 0 = the preset's.
   ms_steps: int = 3000
   ms_batch_rays: int = 1024
+  features_steps: int = 2000  # 0 = no feature field.
+  features_batch_cells: int = 512
   frames: int = 0  # frames of the videos (0 = the scene's whole render path).
   fps: int = 12
   grid_views: int = 4
@@ -188,10 +194,69 @@ def _run_multistyle(out, s: Settings, progress):
   return [run_dir]
 
 
-RENDER_FILES = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
+def feature_config(s: Settings) -> config_lib.FeatureConfig:
+  return config_lib.FeatureConfig(steps=s.features_steps, batch_cells=s.features_batch_cells,
+                                  lr_decay_steps=max(1, s.features_steps), seed=s.seed,
+                                  checkpoint_every=max(1, min(500, s.features_steps)))
 
 
-def _run_renders(out, s: Settings, progress):
+def _features_done(run_dir: str, steps: int) -> bool:
+  """Trained to `steps`, with the statistics of its renders written (the trainer's last act)."""
+  from msnerf_jax.runs import RENDERED_STATS  # pylint: disable=g-import-not-at-top
+  step = _checkpoint_step(run_dir)
+  return step >= steps and os.path.exists(os.path.join(run_dir, RENDERED_STATS.format(step=step)))
+
+
+def _run_features(out, decoder_dir, s: Settings, progress):
+  from msnerf_jax.train import features  # pylint: disable=g-import-not-at-top
+  run_dir = os.path.join(out, "features")
+  features.train(feature_config(s), os.path.join(out, "nerf"), decoder_dir, run_dir,
+                 progress=progress)
+  return [run_dir]
+
+
+def render_files(s: Settings) -> Tuple[str, ...]:
+  """The files the renders stage writes."""
+  return (("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
+          + (("features.mp4", "features.gif") if s.features_steps else ()))
+
+
+def _feature_renderer(out, styles, names, s: Settings):
+  """Renders one camera in the styles `names` by the feature run (the statistics of the style
+  images cover-cropped as per-frame AdaIN crops them; "original": the scene's own, i.e. the
+  decoder's picture of the scene's features)."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import runs, style_videos, stylize
+  from msnerf_jax import styles as styles_lib
+  from msnerf_jax.data.stylized import style_name
+  from msnerf_jax.feature_style import painted_size, style_vector_of_stats
+  run, scene = runs.load_run_and_scene(os.path.join(out, "features"), "features")
+  stats = runs.content_stats(run)
+  cache, size = {}, painted_size(scene.height, scene.width, run.config.stylize_scale)
+  vectors = {styles_lib.ORIGINAL: style_vector_of_stats(stats),
+             **{style_name(p): styles_lib.resolve_style(p, {}, cache, size) for p in styles}}
+  render = style_videos.feature_style_renderer(
+      run, scene, stylize.load_decoder(run.record["decoder"]), stats, s.chunk or None)
+  return lambda c2w: render(c2w, [vectors[n] for n in names])
+
+
+def _style_tile(styles, name, scene):
+  """The grid's first column: the style picture of `name` cover-cropped to the view's size,
+  or, for the original, the first training photo."""
+  from msnerf_jax.data.stylized import style_name  # pylint: disable=g-import-not-at-top
+  paths = {style_name(p): p for p in styles}
+  if name not in paths:
+    return scene.images[scene.split("train")[0]]
+  return images_lib.cover_crop(images_lib.read_image(paths[name], max_side=1024), scene.height,
+                               scene.width)
+
+
+def _side_by_side(images, height):
+  gap = np.ones((height, 2, 3), np.float32)
+  return np.concatenate([x for m, im in enumerate(images) for x in ([gap] if m else []) + [im]], 1)
+
+
+def _run_renders(out, styles, s: Settings, progress):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.progress import progress_bar
   from msnerf_jax import style_videos
@@ -207,20 +272,33 @@ def _run_renders(out, s: Settings, progress):
   # All styles at once per camera (one trunk pass): the side-by-side video and the grid.
   sweeps = [render(c2w, list(vectors.values()))
             for c2w in progress_bar(poses, desc="render styles", disable=not progress)]
-  gap = np.ones((scene.height, 2, 3), np.float32)
-  tiles = [np.concatenate([x for m in range(len(names)) for x in ([gap] if m else []) + [sw[m]]], 1)
-           for sw in sweeps]
-  written = video.write_videos(os.path.join(folder, "styles"), tiles, s.fps)
+  written = video.write_videos(os.path.join(folder, "styles"),
+                               [_side_by_side(sw, scene.height) for sw in sweeps], s.fps)
   morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
   path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
   frames = [render(c2w, [v])[0] for c2w, v in progress_bar(
       list(zip(poses, path)), desc="render morph", disable=not progress)]
   written += video.write_videos(os.path.join(folder, "morph"), frames, s.fps)
   views = np.linspace(0, len(poses), max(1, s.grid_views) + 1)[:-1].round().astype(int)
-  grid_rows = [[sweeps[v][m] for v in views] for m in range(len(names))]
-  written.append(video.write_grid(os.path.join(folder, "grid.png"), grid_rows))
+  groups = [[[_style_tile(styles, n, scene)], [sweeps[v][m] for v in views]]
+            for m, n in enumerate(names)]
+  labels = ["style", "multi-style NeRF (paper)"]
+  if s.features_steps:
+    # One feature render per camera, every style painted from it.
+    render_features = _feature_renderer(out, styles, names, s)
+    feature_sweeps = [render_features(c2w) for c2w in progress_bar(
+        poses, desc="render feature field", disable=not progress)]
+    written += video.write_videos(os.path.join(folder, "features"),
+                                  [_side_by_side(sw, scene.height) for sw in feature_sweeps],
+                                  s.fps)
+    for m, row in enumerate(groups):
+      row.append([feature_sweeps[v][m] for v in views])
+    labels.append("feature field (AdaIN in 3D)")
+  path = os.path.join(folder, "grid.png")
+  images_lib.write_image(path, video.labelled_grid(groups, names, labels))
+  written.append(path)
   files.atomic_write_bytes(os.path.join(folder, "grid_rows.txt"),
-                                "".join(n + "\n" for n in names).encode())
+                           "".join(n + "\n" for n in names).encode())
   return written
 
 
@@ -243,10 +321,12 @@ def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[s
     raise UserError(f"{decoder}: not an AdaIN run folder (no run.json)")
   if s.preset not in config_lib.PRESETS:
     raise UserError(f"--preset {s.preset}: choose from {', '.join(config_lib.PRESETS)}")
-  for name in ("adain_steps", "ms_steps", "adain_batch", "ms_batch_rays", "fps", "grid_views"):
+  for name in ("adain_steps", "ms_steps", "adain_batch", "ms_batch_rays", "fps", "grid_views",
+               "features_batch_cells"):
     if getattr(s, name) < 1:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 1")
-  for name in ("nerf_steps", "nerf_batch_rays", "frames", "chunk", "downscale"):
+  for name in ("nerf_steps", "nerf_batch_rays", "frames", "chunk", "downscale",
+               "features_steps"):
     if getattr(s, name) < 0:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 0")
   if s.adain_size < 16 or s.adain_size % 8:
@@ -275,11 +355,15 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
       "nerf": {**base, "preset": s.preset, "steps": s.nerf_steps, "batch": s.nerf_batch_rays},
       "stylized": {**base, "styles": styles, "decoder": decoder_dir},
       "multistyle": {**base, "steps": s.ms_steps, "batch": s.ms_batch_rays},
+      "features": {**base, "config": config_lib.to_dict(feature_config(s))},
       "renders": {"frames": s.frames, "fps": s.fps, "grid_views": s.grid_views},
   }
   keys["stylized"]["upstream"] = keys["adain"] if decoder is None else decoder_dir
   keys["multistyle"]["upstream"] = [keys["nerf"], keys["stylized"]]
+  keys["features"]["upstream"] = [keys["nerf"], keys["stylized"]["upstream"]]
   keys["renders"]["upstream"] = keys["multistyle"]
+  if s.features_steps:  # records of earlier versions (no feature field) stay valid
+    keys["renders"].update(features=keys["features"], styles=styles)
 
   def nerf_steps():
     if s.nerf_steps:
@@ -300,10 +384,13 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
       "multistyle": (lambda: _checkpoint_step(os.path.join(out, "multistyle")) >= s.ms_steps,
                      lambda: _run_multistyle(out, s, progress),
                      [os.path.join(out, "multistyle")]),
+      "features": (lambda: _features_done(os.path.join(out, "features"), s.features_steps),
+                   lambda: _run_features(out, decoder_dir, s, progress),
+                   [os.path.join(out, "features")]),
       "renders": (lambda: all(os.path.exists(os.path.join(out, "renders", f))
-                              for f in RENDER_FILES),
-                  lambda: _run_renders(out, s, progress),
-                  [os.path.join(out, "renders", f) for f in RENDER_FILES]),
+                              for f in render_files(s)),
+                  lambda: _run_renders(out, styles, s, progress),
+                  [os.path.join(out, "renders", f) for f in render_files(s)]),
   }
   results = []
   t_all = time.time()
@@ -313,6 +400,10 @@ def run_pipeline(data: str, styles: Sequence[str], out: str, decoder: Optional[s
     if name == "adain" and decoder is not None:
       log(f"{tag}: using the given decoder {decoder}")
       results.append({"stage": name, "status": "given", "seconds": 0.0, "outputs": [decoder]})
+      continue
+    if name == "features" and not s.features_steps:
+      log(f"{tag}: off (--features-steps 0)")
+      results.append({"stage": name, "status": "off", "seconds": 0.0, "outputs": []})
       continue
     saved = record["stages"].get(name, {})
     if saved.get("key") == keys[name] and done_fn():
@@ -348,10 +439,13 @@ def format_summary(summary: Dict[str, Any]) -> str:
     elif r["status"] == "skipped":
       what = f"skipped (done before, took {r.get('trained_seconds', 0.0):.1f} s)"
     else:
-      what = "given"
+      what = r["status"]
     lines.append(f"  {r['stage']:<11} {what}")
     for path in r["outputs"]:
       lines.append(f"  {'':<11}   {path}")
+  if summary["settings"].get("features_steps"):
+    lines.append(f"paint it in any style: msnerf render --run "
+                 f"{os.path.join(summary['out'], 'features')} --style IMG --out VIDEO")
   lines.append(f"look around it in the browser: msnerf view --run "
                f"{os.path.join(summary['out'], 'multistyle')}  (pip install \"msnerf-jax[viewer]\")")
   return "\n".join(lines) + "\n"

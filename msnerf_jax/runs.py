@@ -20,7 +20,11 @@ from msnerf_jax.errors import UserError
 
 RUN_FILE = "run.json"
 STYLE_VECTORS = "style_vectors.npy"  # a multi-style run's training styles, [M, 1024].
-CONTENT_STATS = "content_stats.npy"  # a feature run's scene statistics (relu4_1), [2, 512].
+# A feature run's scene statistics (relu4_1 mean and std, [2, 512]): of its targets (the
+# encoder's features of the training views), and of the trained field's own renders of those
+# views at a step (what stylizing normalises by; see content_stats).
+CONTENT_STATS = "content_stats.npy"
+RENDERED_STATS = "rendered_stats_{step}.npy"
 
 
 # The command that makes a run of each kind (named when another kind is given).
@@ -199,10 +203,18 @@ def style_vectors(run: Run) -> Dict[str, np.ndarray]:
   return dict(zip(names, vectors))
 
 
-def content_stats(run_dir: str):
-  """(mean [512], std [512]) relu4_1 statistics of a feature run's training views, pooled
-  over every cell (msnerf_jax.train.features.prepare_targets)."""
-  stats = read_npy(os.path.join(run_dir, CONTENT_STATS), (2, 512))
+def content_stats(run: Run):
+  """(mean [512], std [512]) the features of a loaded feature run are normalised by before a
+  style's statistics are put on: those of the field's own renders of the training views at
+  the run's step, pooled over every cell (written when training ends). The rendered features
+  are the mean of views that disagree, so their spread is narrower than the encoder's (a
+  third of it on the demo scene); normalising by the encoder's statistics would shrink every
+  style's contrast by as much. Runs without them (training stopped early, or made before
+  they were written) fall back to the encoder's statistics of the training views."""
+  path = os.path.join(run.run_dir, RENDERED_STATS.format(step=run.step))
+  if not os.path.exists(path):
+    path = os.path.join(run.run_dir, CONTENT_STATS)
+  stats = read_npy(path, (2, 512))
   return stats[0], stats[1]
 
 

@@ -23,11 +23,21 @@ def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRe
 def feature_style_renderer(run: Any, scene: Any, decoder: Any, content_stats: Any,
                            chunk: Optional[int] = None) -> StyleRenderer:
   """Renders one camera of a loaded feature run in K styles: one feature render, K AdaIN
-  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]."""
-  from msnerf_jax.views import render_feature_styles  # pylint: disable=g-import-not-at-top
-  return lambda camera, styles: render_feature_styles(scene, run.params, run.config, camera,
-                                                      decoder, content_stats,
-                                                      np.stack(styles), chunk)
+  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]. On
+  white-background (Blender) scenes the frames are put over white by the NeRF's opacity,
+  as the stylized views a multi-style run learns are."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.views import render_feature_styles, render_view
+
+  def render(camera, styles):
+    frames = render_feature_styles(scene, run.params, run.config, camera, decoder,
+                                   content_stats, np.stack(styles), chunk)
+    if not scene.white_background:
+      return frames
+    acc = render_view(scene, run.params["nerf"], run.config.nerf, camera,
+                      chunk)["accumulation"][..., None]
+    return frames * acc + (1.0 - acc)
+  return render
 
 
 def spaced_views(poses: Sequence[Any], n: int) -> List[Any]:

@@ -26,13 +26,16 @@ def check_unit(name: str, value: Optional[float]) -> None:
 
 
 def resolve_style(spec: str, vectors: Mapping[str, np.ndarray],
-                  encoder_cache: Dict[str, Any]) -> np.ndarray:
+                  encoder_cache: Dict[str, Any],
+                  size: Optional[Tuple[int, int]] = None) -> np.ndarray:
   """A style vector [1024] from a training style's name or an image file.
 
   Args:
     spec: a key of `vectors`, or the path of any image (a style never trained on).
     vectors: training style name -> [1024].
     encoder_cache: a dict that keeps the VGG encoder between calls (loaded on first use).
+    size: (height, width) an image is cover-cropped to first (style_vector_of): the size a
+      feature run's decoder paints; None for a multi-style run's style vectors.
   Raises:
     UserError when `spec` is neither, or the image is smaller than 16x16.
   """
@@ -46,7 +49,7 @@ def resolve_style(spec: str, vectors: Mapping[str, np.ndarray],
     if min(image.shape[:2]) < 16:
       raise UserError(f"{spec}: style image is {image.shape[1]}x{image.shape[0]}, need at least "
                       "16x16")
-    return style_vector_of(encoder_cache["encoder"], image)
+    return style_vector_of(encoder_cache["encoder"], image, size)
   raise UserError(f"style {spec!r}: neither a training style ({', '.join(vectors)}) nor an "
                   "image file")
 
@@ -67,7 +70,8 @@ def at_strength(vectors: Mapping[str, np.ndarray], style: np.ndarray, strength: 
 def choose_main_style(vectors: Mapping[str, np.ndarray], encoder_cache: Dict[str, Any],
                       source: str, style: Optional[str] = None,
                       interp: Optional[Sequence[str]] = None, t: float = 0.5,
-                      strength: Optional[float] = None) -> Tuple[np.ndarray, str]:
+                      strength: Optional[float] = None,
+                      size: Optional[Tuple[int, int]] = None) -> Tuple[np.ndarray, str]:
   """(style vector [1024], label) of `msnerf render`'s main video.
 
   Args:
@@ -76,16 +80,17 @@ def choose_main_style(vectors: Mapping[str, np.ndarray], encoder_cache: Dict[str
     style: a STYLE (name or image file); default the first training style.
     interp: two STYLEs A, B: the blend (1 - t) A + t B instead of `style`.
     strength: in [0, 1], the chosen style's strength over the original scene.
+    size: as resolve_style's.
   """
   check_unit("--t", t)
   check_unit("--strength", strength)
   if interp:
-    main = blend(resolve_style(interp[0], vectors, encoder_cache),
-                 resolve_style(interp[1], vectors, encoder_cache), t)
+    main = blend(resolve_style(interp[0], vectors, encoder_cache, size),
+                 resolve_style(interp[1], vectors, encoder_cache, size), t)
     label = f"{interp[0]} -> {interp[1]} at t={t:g}"
   else:
     label = style or next(iter(vectors))
-    main = resolve_style(label, vectors, encoder_cache)
+    main = resolve_style(label, vectors, encoder_cache, size)
   if strength is not None:
     main = at_strength(vectors, main, strength, source)
     label += f" at strength {strength:g}"
@@ -93,7 +98,8 @@ def choose_main_style(vectors: Mapping[str, np.ndarray], encoder_cache: Dict[str
 
 
 def morph_ends(vectors: Mapping[str, np.ndarray], encoder_cache: Dict[str, Any],
-               morph: Optional[Sequence[str]] = None
+               morph: Optional[Sequence[str]] = None,
+               size: Optional[Tuple[int, int]] = None
                ) -> Tuple[Optional[List[str]], Optional[List[np.ndarray]]]:
   """(the two STYLEs, their vectors) a morph goes between: `morph`, else the first two
   training styles; (None, None) when the run has a single style and none is given."""
@@ -101,7 +107,7 @@ def morph_ends(vectors: Mapping[str, np.ndarray], encoder_cache: Dict[str, Any],
   ends = list(morph) if morph else (names[:2] if len(names) >= 2 else None)
   if ends is None:
     return None, None
-  return ends, [resolve_style(s, vectors, encoder_cache) for s in ends]
+  return ends, [resolve_style(s, vectors, encoder_cache, size) for s in ends]
 
 
 def sweep(a: np.ndarray, b: np.ndarray, n: int) -> List[np.ndarray]:

@@ -14,6 +14,7 @@ from msnerf_jax import config as config_lib
 from msnerf_jax import runs as runs_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import stylized as stylized_lib
+from msnerf_jax.data.images import cover_crop
 from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
@@ -22,16 +23,6 @@ from msnerf_jax.progress import progress_bar
 
 # (mean, std) [1, C] channel statistics.
 Stats = Tuple[Any, Any]
-
-
-def cover_crop(image: np.ndarray, height: int, width: int) -> np.ndarray:
-  """Resizes [h, w, 3] to cover height x width (aspect kept), then centre-crops to it."""
-  h, w = image.shape[:2]
-  scale = max(height / h, width / w)
-  nh, nw = max(height, round(h * scale)), max(width, round(w * scale))
-  image = images_lib.resize(image, nh, nw)
-  y, x = (nh - height) // 2, (nw - width) // 2
-  return image[y:y + height, x:x + width]
 
 
 def match_color(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5) -> jnp.ndarray:
@@ -260,11 +251,52 @@ def stylize_scene_folder(data: str, decoder_dir: str, style_paths: Sequence[str]
   encoder = vgg.load_vgg_params()
   summary = stylized_lib.stylize_scene(
       scene, data_config,
-      lambda view, style, alpha, scale, stats: stylize_image(
+      lambda _, view, style, alpha, scale, stats: stylize_image(
           decoder, encoder, view, [style], alpha=alpha, scale=scale, content_stats=stats),
       lambda image: stylized_lib.style_vector_of(encoder, image),
       style_paths, alphas, include_original, out, progress=progress,
       decoder=decoder_dir, stylize_scale=stylize_scale,
       content_stats_fn=(lambda views, scale: scene_content_stats(
           encoder, views, scale, progress=progress)) if scene_stats else None)
+  return summary, scene
+
+
+def stylize_scene_from_features(run_dir: str, style_paths: Sequence[str], out: str,
+                                alphas: Optional[Sequence[float]] = None,
+                                include_original: bool = False,
+                                decoder_dir: Optional[str] = None, progress: bool = True,
+                                chunk: Optional[int] = None) -> Tuple[Dict[str, Any], Scene]:
+  """As `stylize_scene_folder`, but every view is the feature run's render of its camera,
+  stylized in 3D (`msnerf stylize-scene --from-features RUN`): the scene's pooled content
+  statistics, each style image's own, the strength `alpha` a blend of the two, and the
+  decoder of the feature run (or `decoder_dir`). The scene, downscale and stylize scale are
+  the feature run's."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import views
+  from msnerf_jax.feature_style import painted_size, style_vector_of_stats
+  run = runs_lib.load_run(run_dir, "features")
+  scene, data_config = runs_lib.scene_of(run)
+  decoder_dir = decoder_dir or run.record["decoder"]
+  decoder = load_decoder(decoder_dir)
+  mean, std = runs_lib.content_stats(run)
+  original = style_vector_of_stats((mean, std))
+  encoder = vgg.load_vgg_params()
+  size = painted_size(scene.height, scene.width, run.config.stylize_scale)
+  vectors = {}  # id(style picture) -> (picture, its style vector): one encoding per style
+
+  def stylize_fn(index, view, style, alpha, scale, stats):
+    del view, scale, stats  # the feature run's camera, stylize scale and statistics.
+    if id(style) not in vectors:
+      vectors[id(style)] = style, stylized_lib.style_vector_of(encoder, style, size)
+    # AdaIN is one affine map per channel: blending the statistics blends the features.
+    vector = (1.0 - alpha) * original + alpha * vectors[id(style)][1]
+    return views.render_feature_styles(scene, run.params, run.config, scene.c2w[index],
+                                       decoder, (mean, std), vector[None], chunk)[0]
+
+  summary = stylized_lib.stylize_scene(
+      scene, data_config, stylize_fn,
+      lambda image: stylized_lib.style_vector_of(encoder, image),
+      style_paths, list(alphas) if alphas is not None else [1.0] * len(style_paths),
+      include_original, out, progress=progress, decoder=decoder_dir,
+      stylize_scale=run.config.stylize_scale, features=run_dir)
   return summary, scene

@@ -102,3 +102,36 @@ def grid(images: Sequence[Sequence[np.ndarray]], pad: int = 2) -> np.ndarray:
 def write_grid(path: str, images: Sequence[Sequence[np.ndarray]], pad: int = 2) -> str:
   write_image(path, grid(images, pad))
   return path
+
+
+def text_image(text: str, width: int, height: int, size: int) -> np.ndarray:
+  """[height, width, 3] white image with `text` (font size `size` px) in black, at its left
+  and centred vertically, clipped to the image."""
+  from PIL import Image, ImageDraw, ImageFont  # pylint: disable=g-import-not-at-top
+  image = Image.new("RGB", (max(1, width), max(1, height)), (255, 255, 255))
+  ImageDraw.Draw(image).text((2, height / 2), text, fill=(0, 0, 0), anchor="lm",
+                             font=ImageFont.load_default(size=size))
+  return np.asarray(image, np.float32) / 255.0
+
+
+def labelled_grid(rows: Sequence[Sequence[Sequence[np.ndarray]]], row_labels: Sequence[str],
+                  group_labels: Sequence[str], pad: int = 2) -> np.ndarray:
+  """A grid whose rows are named on the left and whose column groups are named on top.
+
+  rows[r][g] is the list of equally sized images [h, w, 3] of row r in column group g;
+  groups are set 3 * pad apart (one pad between images) under their label.
+  """
+  h, w = np.shape(rows[0][0][0])[:2]
+  size = max(8, min(14, h // 4))
+  text_h = size + size // 2
+  label_w = max(len(t) for t in row_labels) * size * 6 // 10 + 6
+  header = [text_image("", label_w, text_h, size)]
+  for g, label in enumerate(group_labels):
+    n = len(rows[0][g])
+    header += ([np.ones((text_h, pad, 3), np.float32)] if g else []) + [
+        text_image(label, n * w + (n - 1) * pad, text_h, size)]
+  gap = np.ones((h, pad, 3), np.float32)
+  body = [[text_image(label, label_w, h, size)]
+          + [x for g, images in enumerate(groups) for x in ([gap] if g else []) + list(images)]
+          for label, groups in zip(row_labels, rows)]
+  return grid([header] + body, pad)

@@ -15,8 +15,11 @@ from msnerf_jax.data.scene import load_scene
 
 TINY = ["--size", "16", "--views", "4", "--adain-steps", "2", "--adain-size", "16",
         "--nerf-steps", "4", "--nerf-batch-rays", "64", "--ms-steps", "3", "--ms-batch-rays", "32",
-        "--frames", "4", "--grid-views", "2", "--no-progress"]
-OUTPUTS = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
+        "--features-steps", "3", "--features-batch-cells", "8", "--frames", "4", "--grid-views", "2",
+        "--no-progress"]
+OUTPUTS = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "features.mp4", "features.gif",
+           "grid.png")
+STAGES = ("adain", "nerf", "stylized", "multistyle", "features", "renders")
 
 
 def test_scene_and_styles_are_deterministic_blender_data(tmp_path):
@@ -42,14 +45,22 @@ def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
   out = str(tmp_path / "demo")
   assert cli.main(["demo", "--out", out, *TINY]) == 0
   first = capsys.readouterr().out
-  for stage in ("adain", "nerf", "stylized", "multistyle", "renders"):
+  for stage in STAGES:
     assert f"{stage}: done in" in first
   renders = os.path.join(out, "renders")
   for name in OUTPUTS:
     assert os.path.getsize(os.path.join(renders, name)) > 0
-  grid = np.asarray(Image.open(os.path.join(renders, "grid.png")))
+  grid = np.asarray(Image.open(os.path.join(renders, "grid.png")), np.float32) / 255
   n_styles = 4  # stripes, mosaic, swirl, original
-  assert grid.shape == (n_styles * 16 + (n_styles - 1) * 2, 2 * 16 + 2, 3)
+  # A header line over the two models, a label column, then per style its picture, 2 views
+  # of the paper's model and 2 of the feature field: the tiles are the rendered frames.
+  assert grid.shape[0] == 12 + 2 + n_styles * 16 + (n_styles - 1) * 2
+  stripes = np.asarray(Image.open(os.path.join(out, "styles", "stripes.png")), np.float32) / 255
+  assert np.abs(grid[14:30, -96:-80].mean((0, 1)) - stripes.mean((0, 1))).max() < 0.1
+  frames = imageio.mimread(os.path.join(renders, "features.gif"))
+  right = grid[14:30, -16:]  # first style, last view of the feature field
+  assert np.abs(right - frames[2][:, :16, :3] / 255).mean() < 0.03  # (a GIF's palette)
+  assert np.ptp(right) > 0
   morph = imageio.mimread(os.path.join(renders, "morph.gif"))
   assert len(morph) == 4 and morph[0].shape[:2] == (16, 16)
   assert np.ptp(np.stack(morph).astype(np.float32)) > 0
@@ -58,16 +69,16 @@ def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
   reader.close()
   assert len(frames) == 4 and frames[0].shape[:2] == (16, n_styles * 16 + (n_styles - 1) * 2)
   summary = json.load(open(os.path.join(out, "summary.json")))
-  assert [s["status"] for s in summary["stages"]] == ["ran"] * 5
+  assert [s["status"] for s in summary["stages"]] == ["ran"] * 6
   assert "adain" in open(os.path.join(out, "summary.txt")).read()
 
   mtimes = {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS}
   assert cli.main(["demo", "--out", out, *TINY]) == 0
   second = capsys.readouterr().out
-  assert second.count("already complete, skipped") == 5
+  assert second.count("already complete, skipped") == 6
   assert {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS} == mtimes
   summary = json.load(open(os.path.join(out, "summary.json")))
-  assert [s["status"] for s in summary["stages"]] == ["skipped"] * 5
+  assert [s["status"] for s in summary["stages"]] == ["skipped"] * 6
 
 
 def test_pipeline_bad_input_is_one_line_error(tmp_path, capsys):

@@ -4,6 +4,7 @@ bit, and bad input gets one line."""
 
 import dataclasses
 import functools
+import json
 import os
 import subprocess
 import sys
@@ -136,14 +137,26 @@ def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(feature_world):
   assert any("tables" in p for p in paths)
 
 
-def test_targets_are_cached_and_the_content_stats_pooled_over_them(feature_world):
+def test_targets_are_cached_and_the_content_stats_pooled_over_the_fields_renders(feature_world):
   run_dir = feature_world["run"]
   targets = np.load(os.path.join(run_dir, features.TARGETS))
   assert targets.shape == (4, 4, 4, 512) and targets.dtype == np.float16  # 16 px x 2 / 8
-  mean, std = runs.content_stats(run_dir)
+  encoded = np.load(os.path.join(run_dir, runs.CONTENT_STATS))
   want = pooled_stats(list(targets.astype(np.float32)))
-  np.testing.assert_allclose(mean, want[0], rtol=1e-4, atol=1e-5)
-  np.testing.assert_allclose(std, want[1], rtol=1e-4, atol=1e-5)
+  np.testing.assert_allclose(encoded, np.stack(want), rtol=1e-4, atol=1e-5)
+  # Stylizing normalises by the trained field's own renders of the training views.
+  from msnerf_jax import views  # pylint: disable=g-import-not-at-top
+  run, scene = msnerf_jax.load_run(run_dir), feature_world["scene"]
+  mean, std = runs.content_stats(run)
+  maps = [views.render_feature_map(scene, run.params, run.config, int(i))["features"]
+          for i in scene.split("train")]
+  rendered = pooled_stats(maps)
+  np.testing.assert_allclose(mean, rendered[0], rtol=1e-4, atol=1e-5)
+  np.testing.assert_allclose(std, rendered[1], rtol=1e-4, atol=1e-5)
+  assert not np.allclose(std, encoded[1], rtol=0.05)
+  # Without them (a run from before they were written): the encoder's statistics.
+  stale = dataclasses.replace(run, step=run.step + 1)
+  np.testing.assert_allclose(np.stack(runs.content_stats(stale)), encoded)
 
 
 @pytest.mark.parametrize("sampler", ["hierarchical", "grid"])
@@ -176,7 +189,7 @@ def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_feature
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
   decoder = stylize.load_decoder(feature_world["decoder"])
-  stats = runs.content_stats(feature_world["run"])
+  stats = runs.content_stats(run)
   rng = np.random.default_rng(3)
   styles = np.concatenate([rng.uniform(0, 2, (3, 512)), rng.uniform(0.5, 2, (3, 512))], 1)
   camera = scene.c2w[4]
@@ -204,6 +217,45 @@ def test_msnerf_render_paints_a_feature_run_in_any_style_image(feature_world, tm
                    "--frames", "2", "--morph", style, "original", "--grid-steps", "2",
                    "--grid-views", "1"]) == 0
   assert os.path.getsize(out + ".mp4") > 0 and os.path.exists(out + "_grid.png")
+
+
+def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dataset(
+    feature_world, tmp_path, capsys):
+  from msnerf_jax import stylize, views  # pylint: disable=g-import-not-at-top
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.images import read_image
+  from msnerf_jax.data.stylized import load_stylized, style_vector_of
+  from msnerf_jax.models.vgg import load_vgg_params
+  style = write_style(tmp_path / "red.png", (200, 30, 30))
+  out = str(tmp_path / "stylized")
+  assert cli.main(["stylize-scene", "--from-features", feature_world["run"], "--styles", style,
+                   "--alphas", "0.5", "--include-original", "--out", out]) == 0
+  data = load_stylized(out, progress=False)
+  scene, run = feature_world["scene"], msnerf_jax.load_run(feature_world["run"])
+  manifest = json.load(open(os.path.join(out, "manifest.json")))
+  assert manifest["features"] == os.path.abspath(feature_world["run"])
+  assert manifest["stylize_scale"] == 2 and manifest["content_stats"] == "scene"
+  # View 5 in the red style at strength 0.5: the field's render of that camera, with half the
+  # style's statistics and half the scene's, on the photo's white background.
+  stats = runs.content_stats(run)
+  # The style picture as per-frame AdaIN crops it for the painted size (32 x 32 here).
+  red = style_vector_of(load_vgg_params(), read_image(style), (32, 32))
+  vector = 0.5 * style_vector_of_stats(stats) + 0.5 * np.asarray(red)
+  want = views.render_feature_styles(scene, run.params, run.config, scene.c2w[5],
+                                     stylize.load_decoder(feature_world["decoder"]), stats,
+                                     vector[None])[0]
+  a = scene.alphas[5][..., None] / 255.0
+  want = want * a + (1 - a)
+  np.testing.assert_allclose(data.images[0, 5] / 255.0, want, atol=1.5 / 255)
+  np.testing.assert_allclose(data.images[1] / 255.0, scene.images, atol=0.6 / 255)  # original
+  # The scene is the feature run's: giving one too is refused, and nothing is written.
+  assert cli.main(["stylize-scene", "--from-features", feature_world["run"], "--data",
+                   feature_world["scene_dir"], "--styles", style, "--out",
+                   str(tmp_path / "other")]) == 2
+  assert "--data: --from-features takes the scene" in capsys.readouterr().err
+  assert cli.main(["stylize-scene", "--styles", style, "--out", str(tmp_path / "other")]) == 2
+  assert "--data: required (or --from-features FEATURE_RUN)" in capsys.readouterr().err
+  assert not os.path.exists(tmp_path / "other")
 
 
 @pytest.mark.slow  # 30 s; the trainers' resume machinery (loop.fit) is tested by the NeRF's
@@ -285,8 +337,9 @@ def test_a_feature_run_pointed_at_another_nerf_run_is_refused(feature_world, tmp
 @pytest.mark.parametrize("change, message", [
     ({"stylize_scale": 0}, "--stylize-scale 0: must be a whole number"),
     ({"stylize_scale": 1.5}, "--stylize-scale 1.5: must be a whole number"),
-    ({"hash_table_size": 1000}, "hash_table_size 1000: must be a power of two"),
-    ({"dim": 0}, "features dim 0: must be >= 1"),
+    ({"hash_table_size": 1000}, "--hash-table-size 1000: must be a power of two"),
+    ({"dim": 0}, "--dim 0: must be >= 1"),
+    ({"hash_min_res": 64}, "--hash-max-res 32: finest resolution below the coarsest"),
 ])
 def test_a_feature_setting_that_cannot_work_is_named(change, message):
   from msnerf_jax.parallel import data_parallel  # pylint: disable=g-import-not-at-top
@@ -336,18 +389,19 @@ def test_evaluation_frames_of_a_feature_run_follow_its_style_and_white_backgroun
   encoder = vgg.load_vgg_params()
   red = np.tile(np.array([0.9, 0.1, 0.1], np.float32), (32, 32, 1))
   blue = np.tile(np.array([0.1, 0.1, 0.9], np.float32), (32, 32, 1))
-  frames, geometry = evaluate.feature_field_frames(run, scene, base, feature_world["nerf"],
-                                                   encoder, red, 1.0)
+  (frames, other), geometry = evaluate.feature_field_frames(
+      run, scene, base, feature_world["nerf"], encoder, [red, blue], [1.0, 1.0])
   assert geometry is base and len(frames) == 2 and frames[0].shape == (16, 16, 3)
-  other, _ = evaluate.feature_field_frames(run, scene, base, feature_world["nerf"], encoder,
-                                           blue, 1.0)
   assert float(np.abs(frames[0] - other[0]).max()) > 1e-4
+  (alone,), _ = evaluate.feature_field_frames(run, scene, base, feature_world["nerf"], encoder,
+                                              [blue], [1.0])
+  np.testing.assert_allclose(alone[1], other[1], atol=1e-5)  # a sweep equals single styles
   # Where the NeRF is transparent the frame is white (Blender), as per-frame AdaIN's.
   clear = base[0]["accumulation"] < 1e-3
   if clear.any():
     np.testing.assert_allclose(frames[0][clear], 1.0, atol=2e-3)
   # Another NeRF run's field: its own geometry is rendered.
   _, own = evaluate.feature_field_frames(run, scene, base, str(tmp_path / "elsewhere"), encoder,
-                                         red, 1.0)
+                                         [red], [1.0])
   assert own is not base
   np.testing.assert_allclose(own[0]["depth"], base[0]["depth"], atol=1e-5)

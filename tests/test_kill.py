@@ -224,7 +224,8 @@ def test_kill_20_times_and_resume(trainer, inputs, tmp_path):
 
 DEMO = ["--size", "16", "--views", "4", "--adain-steps", "4", "--adain-size", "16",
         "--nerf-steps", "30", "--nerf-batch-rays", "64", "--ms-steps", "30",
-        "--ms-batch-rays", "32", "--frames", "6", "--grid-views", "2"]
+        "--ms-batch-rays", "32", "--features-steps", "30", "--features-batch-cells", "8",
+        "--frames", "6", "--grid-views", "2"]
 
 
 def check_artefacts(folder):

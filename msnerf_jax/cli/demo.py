@@ -17,7 +17,8 @@ def demo_settings():
   # render) lose the scene.
   return dataclasses.replace(pipeline.Settings(), adain_steps=800, adain_size=64, adain_batch=4,
                              adain_lr=1e-3, style_weight=0.5, nerf_steps=1000,
-                             nerf_batch_rays=1024, ms_steps=1500, ms_batch_rays=512, fps=10)
+                             nerf_batch_rays=1024, ms_steps=1500, ms_batch_rays=512,
+                             features_steps=400, features_batch_cells=512, fps=10)
 
 
 def register(commands, formatter):
@@ -73,6 +74,8 @@ def cmd_demo(args):
                                   progress=not args.no_progress)
   print("\n" + pipeline.format_summary(summary), end="")
   renders = os.path.join(args.out, "renders")
+  features = (f", {os.path.join(renders, 'features.mp4')} (the same, painted by the feature "
+              "field)") if args.features_steps else ""
   print(f"\nlook at: {os.path.join(renders, 'morph.mp4')} (style morph along the orbit), "
         f"{os.path.join(renders, 'grid.png')} (styles x views), "
-        f"{os.path.join(renders, 'styles.mp4')} (all styles side by side)")
+        f"{os.path.join(renders, 'styles.mp4')} (all styles side by side){features}")

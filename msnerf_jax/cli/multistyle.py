@@ -24,8 +24,16 @@ def register(commands, formatter):
                   "plus a manifest. An interrupted run continues where it stopped.",
       epilog="example: msnerf stylize-scene --data lego --downscale 8 --decoder runs/adain "
              "--styles a.jpg b.jpg --include-original --out runs/lego_styles")
-  p.add_argument("--data", required=True, help="scene folder (Blender or LLFF, auto-detected)")
-  p.add_argument("--decoder", required=True, help="AdaIN run folder (`msnerf adain train`)")
+  p.add_argument("--data", default=None,
+                 help="scene folder (Blender, LLFF or a capture, auto-detected); required "
+                      "unless --from-features")
+  p.add_argument("--decoder", default=None,
+                 help="AdaIN run folder (`msnerf adain train`); required unless "
+                      "--from-features (then default: the feature run's)")
+  p.add_argument("--from-features", default=None, metavar="FEATURE_RUN",
+                 help="render every view from a feature run (`msnerf features train`), "
+                      "stylized in 3D, instead of stylizing each photo by 2D AdaIN; the scene, "
+                      "downscale and stylize scale are the run's")
   p.add_argument("--styles", nargs="+", required=True, metavar="IMG", help="style images")
   p.add_argument("--alphas", nargs="+", type=float, default=None, metavar="A",
                  help="style strength per style image in [0, 1] (default 1 for all)")
@@ -164,11 +172,25 @@ def register(commands, formatter):
 def cmd_stylize_scene(args):
   from msnerf_jax import stylize as stylize_lib  # pylint: disable=g-import-not-at-top
   t0 = time.time()
-  summary, scene = stylize_lib.stylize_scene_folder(
-      args.data, args.decoder, args.styles, args.out, alphas=args.alphas,
-      include_original=args.include_original, downscale=args.downscale,
-      stylize_scale=args.stylize_scale, scene_stats=args.scene_stats, scene_format=args.format,
-      layout=args.layout)
+  if args.from_features is not None:
+    given = [f"--{name.replace('_', '-')}" for name, default in (
+        ("data", None), ("downscale", 0), ("format", "auto"), ("layout", "auto"),
+        ("stylize_scale", 1), ("scene_stats", False)) if getattr(args, name) != default]
+    if given:
+      raise UserError(f"{given[0]}: --from-features takes the scene, its size, the stylize "
+                      "scale and the statistics from the feature run; drop it")
+    summary, scene = stylize_lib.stylize_scene_from_features(
+        args.from_features, args.styles, args.out, alphas=args.alphas,
+        include_original=args.include_original, decoder_dir=args.decoder)
+  else:
+    for name in ("data", "decoder"):
+      if getattr(args, name) is None:
+        raise UserError(f"--{name}: required (or --from-features FEATURE_RUN)")
+    summary, scene = stylize_lib.stylize_scene_folder(
+        args.data, args.decoder, args.styles, args.out, alphas=args.alphas,
+        include_original=args.include_original, downscale=args.downscale,
+        stylize_scale=args.stylize_scale, scene_stats=args.scene_stats,
+        scene_format=args.format, layout=args.layout)
   print_summary("stylized dataset done", [
       ("folder", summary["out"]), ("styles", ", ".join(summary["styles"])),
       ("views", f"{len(scene.images)} of {scene.width}x{scene.height} per style"),
@@ -262,25 +284,26 @@ def cmd_render(args):
   if kind == "features":
     # pylint: disable=g-import-not-at-top
     from msnerf_jax import runs, stylize
-    from msnerf_jax.feature_style import style_vector_of_stats
+    from msnerf_jax.feature_style import painted_size, style_vector_of_stats
     if args.style is None and not args.interp:
       raise UserError(f"{args.run}: a feature run paints any style image: give --style IMG "
                       "(or --interp A B)")
     run, scene = load_run_and_scene(args.run, "features")
-    stats = runs.content_stats(args.run)
+    stats = runs.content_stats(run)
     # Its "original" is the scene's own statistics: --strength blends towards them (alpha).
     vectors = {styles_lib.ORIGINAL: style_vector_of_stats(stats)}
+    size = painted_size(scene.height, scene.width, run.config.stylize_scale)
     renderer = style_videos.feature_style_renderer(
         run, scene, stylize.load_decoder(args.decoder or run.record["decoder"]), stats,
         args.chunk)
   else:
     run, scene = load_run_and_scene(args.run, "multistyle")
-    vectors = style_vectors(run)
+    vectors, size = style_vectors(run), None
     renderer = style_videos.style_renderer(run, scene, args.chunk)
   cache = {}
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
-                                             args.t, args.strength)
-  morph, ends = styles_lib.morph_ends(vectors, cache, args.morph)
+                                             args.t, args.strength, size)
+  morph, ends = styles_lib.morph_ends(vectors, cache, args.morph, size)
   poses, fps, size = render_cameras(scene, args)
   t0 = time.time()
   written = style_videos.write_render_videos(

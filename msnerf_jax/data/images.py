@@ -18,6 +18,16 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MAX_DECODE_PIXELS = 300_000_000
 
 
+def cover_crop(image: np.ndarray, height: int, width: int) -> np.ndarray:
+  """Resizes [h, w, 3] to cover height x width (aspect kept), then centre-crops to it."""
+  h, w = image.shape[:2]
+  scale = max(height / h, width / w)
+  nh, nw = max(height, round(h * scale)), max(width, round(w * scale))
+  image = resize(image, nh, nw)
+  y, x = (nh - height) // 2, (nw - width) // 2
+  return image[y:y + height, x:x + width]
+
+
 def list_images(folder: str) -> List[str]:
   """Sorted paths of the image files (by extension) directly inside `folder`."""
   if not os.path.exists(folder):

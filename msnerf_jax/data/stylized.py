@@ -17,7 +17,7 @@ its views exist, so an interrupted `stylize-scene` continues where it stopped.
 import dataclasses
 import os
 import re
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -50,13 +50,14 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
                   style_vector_fn, style_paths: Sequence[str], alphas: Sequence[float],
                   include_original: bool, out_dir: str, progress: bool = True,
                   decoder: Optional[str] = None, stylize_scale: int = 1,
-                  content_stats_fn=None) -> Dict[str, Any]:
+                  content_stats_fn=None, features: Optional[str] = None) -> Dict[str, Any]:
   """Writes (or completes) the stylized dataset of a scene.
 
   Args:
     scene, data_config: the loaded scene and the DataConfig that loads it again.
-    stylize_fn(content [H, W, 3], style [h, w, 3], alpha, scale, content_stats) -> [H, W, 3]:
-      the 2D stylizer (stylize.stylize_image's `scale` and `content_stats`).
+    stylize_fn(index, content [H, W, 3], style [h, w, 3], alpha, scale, content_stats) ->
+      [H, W, 3]: the stylizer of view `index` of the scene (stylize.stylize_image's `scale`
+      and `content_stats`, or a feature field's render of that camera).
     style_vector_fn(image [h, w, 3]) -> [1024]: the style vector of an image.
     style_paths, alphas: style images and their strengths (one alpha each).
     include_original: add the unstylized views as one more style named "original", whose
@@ -69,6 +70,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       by the content statistics of the training views (stylize.scene_content_stats), saved
       as content_stats.npy so that a resumed run uses the same; without it, each view by its
       own (per-view AdaIN, as in docs/method.md).
+    features: the feature run behind stylize_fn, if any (recorded; its content statistics
+      are pooled over the scene).
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
@@ -100,6 +103,8 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       "decoder": os.path.abspath(decoder) if decoder else None,
       "stylize_scale": int(stylize_scale),
       "content_stats": "view" if content_stats_fn is None else "scene"}
+  if features is not None:  # (absent otherwise: the manifests of earlier versions stay valid)
+    manifest.update(features=os.path.abspath(features), content_stats="scene")
   path = os.path.join(out_dir, MANIFEST)
   if os.path.exists(out_dir) and not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: is a file, expected a folder")
@@ -150,7 +155,7 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
         continue
       view = scene.images[i]
       if name != ORIGINAL:
-        view = np.asarray(stylize_fn(view, pictures[name], style["alpha"], stylize_scale,
+        view = np.asarray(stylize_fn(i, view, pictures[name], style["alpha"], stylize_scale,
                                      content_stats))
         if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
           a = scene.alphas[i][..., None].astype(np.float32) / 255.0
@@ -285,16 +290,24 @@ def load_stylized(out_dir: str, progress: bool = True) -> StylizedData:
 VECTOR_MAX_SIDE = 512  # style images are shrunk to this before their style vector is taken.
 
 
-def style_vector_of(encoder_params: Any, image: np.ndarray) -> np.ndarray:
+def style_vector_of(encoder_params: Any, image: np.ndarray,
+                    size: Optional[Tuple[int, int]] = None) -> np.ndarray:
   """The style vector [1024] of an image [h, w, 3] in [0, 1], with its longer side shrunk to
   VECTOR_MAX_SIDE, so the vector of a style does not depend on the file's resolution (and one
-  compilation serves most images). Used for training styles and for any image at render time."""
+  compilation serves most images). Used for training styles and for any image at render time.
+
+  With `size` (height, width), the image is cover-cropped to it instead, as AdaIN crops a
+  style for a content image of that size (stylize.stylize_image): the statistics a feature
+  run paints with, so its strokes have the scale per-frame AdaIN's have.
+  """
   # pylint: disable=g-import-not-at-top
   import jax.numpy as jnp
   from msnerf_jax import adain as adain_lib
   h, w = image.shape[:2]
   scale = VECTOR_MAX_SIDE / max(h, w)
-  if scale < 1:
+  if size is not None and min(h, w) >= 16:
+    image = images_lib.cover_crop(image, *size)
+  elif scale < 1:
     image = images_lib.resize(image, max(16, round(h * scale)), max(16, round(w * scale)))
   if min(image.shape[:2]) < 16:
     raise UserError(f"style image of {w}x{h} pixels is too small (needs at least 16x16)")

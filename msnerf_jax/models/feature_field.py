@@ -21,8 +21,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax.hash_encoding import hash_encode, level_resolutions
-from msnerf_jax.models.hash_trunk import init_tables
+from msnerf_jax.models.hash_trunk import encode_in_box
 
 CHANNELS = 512  # relu4_1 of the VGG encoder the AdaIN decoder reads.
 
@@ -41,9 +40,7 @@ class FeatureField(nn.Module):
 
   @nn.compact
   def __call__(self, points: jnp.ndarray) -> jnp.ndarray:
-    tables = self.param("tables", init_tables, (self.levels, self.table_size, self.features))
-    unit = (points + self.bound) / (2.0 * self.bound)
-    x = hash_encode(tables, unit, level_resolutions(self.levels, self.min_res, self.max_res))
+    x = encode_in_box(self, points)
     if self.width:
       x = nn.gelu(nn.Dense(self.width, name="hidden")(x))
     return nn.Dense(self.dim, name="out")(x)

@@ -35,6 +35,17 @@ def init_tables(key, shape, dtype=jnp.float32):
   return jax.random.uniform(key, shape, dtype, -1e-4, 1e-4)
 
 
+def encode_in_box(module: nn.Module, points: jnp.ndarray) -> jnp.ndarray:
+  """Inside the compact `__call__` of a module with fields levels, features, table_size,
+  min_res, max_res and bound: declares its `tables` param [levels, table_size, features] and
+  hash-encodes points [..., 3] of the box [-bound, bound]^3 -> [..., levels * features]."""
+  tables = module.param("tables", init_tables,
+                        (module.levels, module.table_size, module.features))
+  unit = (points + module.bound) / (2.0 * module.bound)
+  return hash_encode(tables, unit,
+                     level_resolutions(module.levels, module.min_res, module.max_res))
+
+
 class HashTrunk(nn.Module):
   """Points -> hash features -> `point_0` (W, ReLU) -> density `density` (W -> 1, exp) and
   `feature` (W -> W); view layers `view` ((W + encoded dirs) -> W, ReLU) and `view_1`
@@ -64,9 +75,7 @@ class HashTrunk(nn.Module):
     Returns: dict of `sigma` [...] (already non-negative: trunc_exp), `hidden` [..., W] and
     `view_features` [..., W/2].
     """
-    tables = self.param("tables", init_tables, (self.levels, self.table_size, self.features))
-    unit = (points + self.bound) / (2.0 * self.bound)
-    x = hash_encode(tables, unit, level_resolutions(self.levels, self.min_res, self.max_res))
+    x = encode_in_box(self, points)
     h = nn.relu(ConcatInputDense(self.width, name="point_0")([x]))
     sigma = trunc_exp(ConcatInputDense(1, name="density")([h])[..., 0])
     feature = ConcatInputDense(self.width, name="feature")([h])

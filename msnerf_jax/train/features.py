@@ -72,6 +72,31 @@ def prepare_targets(run_dir: str, scene: Scene, config: FeatureConfig,
   write_npy(path, targets)
 
 
+STATS_VIEWS = 32  # training views (evenly spaced) the rendered statistics are pooled over.
+
+
+def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool = False
+                   ) -> Tuple[np.ndarray, np.ndarray]:
+  """(mean [512], std [512]) of the field's rendered relu4_1 cells (views.render_feature_map)
+  over up to STATS_VIEWS evenly spaced training views: the statistics stylizing normalises
+  by (runs.content_stats)."""
+  from msnerf_jax import views  # pylint: disable=g-import-not-at-top
+  train = scene.split("train")
+  pick = train[np.linspace(0, len(train) - 1, min(len(train), STATS_VIEWS)).round().astype(int)]
+  return pooled_stats([views.render_feature_map(scene, params, config, int(i))["features"]
+                       for i in progress_bar(pick, desc="rendered statistics",
+                                             disable=not progress, leave=False)])
+
+
+def write_rendered_stats(run_dir: str, scene: Scene, progress: bool = False) -> str:
+  """Writes runs.RENDERED_STATS of the run's latest step unless it is there; returns it."""
+  run = runs_lib.load_run(run_dir, KIND)
+  path = os.path.join(run_dir, runs_lib.RENDERED_STATS.format(step=run.step))
+  if not os.path.exists(path):
+    write_npy(path, np.stack(rendered_stats(run.params, run.config, scene, progress)))
+  return path
+
+
 def load_targets(run_dir: str, n_views: int, shape: Tuple[int, int]) -> np.ndarray:
   """The target cache [N, h, w, 512] float16 (prepare_targets), checked."""
   return read_npy(os.path.join(run_dir, TARGETS),
@@ -191,21 +216,16 @@ def sample_batch(key, targets, c2w, K, config: FeatureConfig, ndc: bool, shape, 
 
 
 def check_config(config: FeatureConfig, parallel: DataParallel) -> None:
-  """UserError naming the setting that cannot work."""
+  """UserError naming the setting (its `msnerf features train` option) that cannot work."""
   images_lib.check_scale(config.stylize_scale)
   if config.width < 0:
-    raise UserError(f"features width {config.width}: must be >= 0")
-  for name in ("dim", "hash_levels", "hash_features", "rays_per_cell", "batch_cells",
-               "top_k", "steps"):
+    config_lib.bad_setting(config, "width", "must be >= 0")
+  for name in ("dim", "rays_per_cell", "batch_cells", "top_k", "steps"):
     if getattr(config, name) < 1:
-      raise UserError(f"features {name} {getattr(config, name)}: must be >= 1")
+      config_lib.bad_setting(config, name, "must be >= 1")
   if config.loss not in LOSSES:
-    raise UserError(f"features loss {config.loss!r}: unknown (choose from {', '.join(LOSSES)})")
-  if config.hash_table_size & (config.hash_table_size - 1):
-    raise UserError(f"features hash_table_size {config.hash_table_size}: must be a power of two")
-  if config.hash_max_res < config.hash_min_res:
-    raise UserError(f"features hash_max_res {config.hash_max_res}: below hash_min_res "
-                    f"{config.hash_min_res}")
+    config_lib.bad_setting(config, "loss", f"unknown (choose from {', '.join(LOSSES)})")
+  config_lib.check_hash_settings(config)
   nerf_lib.check_batch_splits(config.batch_cells, parallel)
 
 
@@ -255,10 +275,12 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
   base_key = jax.random.PRNGKey(config.seed)
   shape = (scene.height, scene.width, scene.focal)
-  return loop_lib.fit(
+  summary = loop_lib.fit(
       init_state(config, nerf_run.params), compile_train_step(config, devices),
       lambda step: sample_batch(jax.random.fold_in(base_key, step), targets, c2w, K, config,
                                 scene.ndc, shape, scene.near, scene.far, coeffs),
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
       keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="features train",
       progress=progress, callback=callback, shown=("mse", "l1"))
+  distributed.primary_first(write_rendered_stats, run_dir, scene, progress)
+  return summary
