@@ -72,7 +72,7 @@ def prepare_targets(run_dir: str, scene: Scene, config: FeatureConfig,
   write_npy(path, targets)
 
 
-STATS_VIEWS = 32  # training views (evenly spaced) the rendered statistics are pooled over.
+STATS_VIEWS = 16  # training views (evenly spaced) the rendered statistics are pooled over.
 
 
 def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool = False
