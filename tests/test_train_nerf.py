@@ -151,6 +151,8 @@ TWO_DEVICES = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # 61 s, three compilations; the default suite's multi-device check is
+# test_distributed.py's (two processes of one device = one process of two devices)
 def test_two_devices_give_the_same_update_as_one(tiny_blender):
   tests = os.path.dirname(os.path.abspath(__file__))
   code = TWO_DEVICES.format(tests=tests, scene=tiny_blender)
