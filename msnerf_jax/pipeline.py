@@ -251,11 +251,6 @@ def _style_tile(styles, name, scene):
                                scene.width)
 
 
-def _side_by_side(images, height):
-  gap = np.ones((height, 2, 3), np.float32)
-  return np.concatenate([x for m, im in enumerate(images) for x in ([gap] if m else []) + [im]], 1)
-
-
 def _run_renders(out, styles, s: Settings, progress):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.progress import progress_bar
@@ -273,7 +268,7 @@ def _run_renders(out, styles, s: Settings, progress):
   sweeps = [render(c2w, list(vectors.values()))
             for c2w in progress_bar(poses, desc="render styles", disable=not progress)]
   written = video.write_videos(os.path.join(folder, "styles"),
-                               [_side_by_side(sw, scene.height) for sw in sweeps], s.fps)
+                               [video.grid([sw]) for sw in sweeps], s.fps)
   morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
   path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
   frames = [render(c2w, [v])[0] for c2w, v in progress_bar(
@@ -289,7 +284,7 @@ def _run_renders(out, styles, s: Settings, progress):
     feature_sweeps = [render_features(c2w) for c2w in progress_bar(
         poses, desc="render feature field", disable=not progress)]
     written += video.write_videos(os.path.join(folder, "features"),
-                                  [_side_by_side(sw, scene.height) for sw in feature_sweeps],
+                                  [video.grid([sw]) for sw in feature_sweeps],
                                   s.fps)
     for m, row in enumerate(groups):
       row.append([feature_sweeps[v][m] for v in views])
