@@ -38,8 +38,7 @@ from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, read_manifest, style_vector_of
 from msnerf_jax.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.feature_style import painted_size, style_vector_of_stats
-from msnerf_jax.runs import content_stats, load_run, scene_of, style_vectors
+from msnerf_jax.runs import feature_painting, load_run, scene_of, style_vectors
 from msnerf_jax.views import render_feature_styles, render_styles, render_view
 from msnerf_jax.progress import progress_bar
 
@@ -137,10 +136,8 @@ def feature_field_frames(field, scene, base, base_nerf: str, encoder,
   opacity, as per_frame_adain does. The geometry is `base`'s when the field was trained on
   that NeRF run (`base_nerf`), else its own NeRF's renders."""
   decoder = stylize_lib.load_decoder(field.record["decoder"])
-  stats = content_stats(field)
-  size = painted_size(scene.height, scene.width, field.config.stylize_scale)
-  vectors = np.stack([alpha * style_vector_of(encoder, p, size)
-                      + (1.0 - alpha) * style_vector_of_stats(stats)
+  stats, original, size = feature_painting(field, scene)
+  vectors = np.stack([alpha * style_vector_of(encoder, p, size) + (1.0 - alpha) * original
                       for p, alpha in zip(pictures, alphas)])
   geometry = base
   if os.path.abspath(field.record["nerf_run"]) != os.path.abspath(base_nerf):

@@ -229,11 +229,10 @@ def _feature_renderer(out, styles, names, s: Settings):
   from msnerf_jax import runs, style_videos, stylize
   from msnerf_jax import styles as styles_lib
   from msnerf_jax.data.stylized import style_name
-  from msnerf_jax.feature_style import painted_size, style_vector_of_stats
   run, scene = runs.load_run_and_scene(os.path.join(out, "features"), "features")
-  stats = runs.content_stats(run)
-  cache, size = {}, painted_size(scene.height, scene.width, run.config.stylize_scale)
-  vectors = {styles_lib.ORIGINAL: style_vector_of_stats(stats),
+  stats, original, size = runs.feature_painting(run, scene)
+  cache = {}
+  vectors = {styles_lib.ORIGINAL: original,
              **{style_name(p): styles_lib.resolve_style(p, {}, cache, size) for p in styles}}
   render = style_videos.feature_style_renderer(
       run, scene, stylize.load_decoder(run.record["decoder"]), stats, s.chunk or None)

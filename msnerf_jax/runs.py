@@ -218,6 +218,22 @@ def content_stats(run: Run):
   return stats[0], stats[1]
 
 
+def feature_painting(run: Run, scene):
+  """What painting a loaded feature run's views in a style needs besides the style: its
+  content statistics (content_stats), its "original" style vector (those statistics as a
+  style: AdaIN towards them is the identity, so blending a style's vector towards it sets
+  the strength) and the (height, width) its decoder paints a view of `scene` at (what a
+  style picture is cover-cropped to, as per-frame AdaIN crops it).
+
+  Returns: ((mean [512], std [512]), original [1024], (height, width)).
+  """
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.feature_style import painted_size, style_vector_of_stats
+  stats = content_stats(run)
+  return (stats, style_vector_of_stats(stats),
+          painted_size(scene.height, scene.width, run.config.stylize_scale))
+
+
 def _expected_params(kind: str, config: Any):
   """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
   # pylint: disable=g-import-not-at-top

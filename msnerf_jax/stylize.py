@@ -273,25 +273,23 @@ def stylize_scene_from_features(run_dir: str, style_paths: Sequence[str], out: s
   the feature run's."""
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import views
-  from msnerf_jax.feature_style import painted_size, style_vector_of_stats
   run = runs_lib.load_run(run_dir, "features")
   scene, data_config = runs_lib.scene_of(run)
   decoder_dir = decoder_dir or run.record["decoder"]
   decoder = load_decoder(decoder_dir)
-  mean, std = runs_lib.content_stats(run)
-  original = style_vector_of_stats((mean, std))
+  stats, original, size = runs_lib.feature_painting(run, scene)
   encoder = vgg.load_vgg_params()
-  size = painted_size(scene.height, scene.width, run.config.stylize_scale)
-  vectors = {}  # id(style picture) -> (picture, its style vector): one encoding per style
+  last = {"picture": None, "vector": None}  # stylize_scene goes style by style: one encoding each
 
-  def stylize_fn(index, view, style, alpha, scale, stats):
-    del view, scale, stats  # the feature run's camera, stylize scale and statistics.
-    if id(style) not in vectors:
-      vectors[id(style)] = style, stylized_lib.style_vector_of(encoder, style, size)
+  def stylize_fn(index, view, style, alpha, scale, content_stats):
+    del view, scale, content_stats  # the feature run's camera, stylize scale and statistics.
+    if last["picture"] is not style:
+      last.update(picture=style, vector=stylized_lib.style_vector_of(encoder, style, size))
     # AdaIN is one affine map per channel: blending the statistics blends the features.
-    vector = (1.0 - alpha) * original + alpha * vectors[id(style)][1]
-    return views.render_feature_styles(scene, run.params, run.config, scene.c2w[index],
-                                       decoder, (mean, std), vector[None], chunk)[0]
+    vector = (1.0 - alpha) * original + alpha * last["vector"]
+    # The view index, not its pose: a capture's views each have their own intrinsics.
+    return views.render_feature_styles(scene, run.params, run.config, int(index), decoder,
+                                       stats, vector[None], chunk)[0]
 
   summary = stylized_lib.stylize_scene(
       scene, data_config, stylize_fn,

@@ -241,7 +241,7 @@ def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dat
   # The style picture as per-frame AdaIN crops it for the painted size (32 x 32 here).
   red = style_vector_of(load_vgg_params(), read_image(style), (32, 32))
   vector = 0.5 * style_vector_of_stats(stats) + 0.5 * np.asarray(red)
-  want = views.render_feature_styles(scene, run.params, run.config, scene.c2w[5],
+  want = views.render_feature_styles(scene, run.params, run.config, 5,
                                      stylize.load_decoder(feature_world["decoder"]), stats,
                                      vector[None])[0]
   a = scene.alphas[5][..., None] / 255.0

@@ -284,15 +284,13 @@ def cmd_render(args):
   if kind == "features":
     # pylint: disable=g-import-not-at-top
     from msnerf_jax import runs, stylize
-    from msnerf_jax.feature_style import painted_size, style_vector_of_stats
     if args.style is None and not args.interp:
       raise UserError(f"{args.run}: a feature run paints any style image: give --style IMG "
                       "(or --interp A B)")
     run, scene = load_run_and_scene(args.run, "features")
-    stats = runs.content_stats(run)
     # Its "original" is the scene's own statistics: --strength blends towards them (alpha).
-    vectors = {styles_lib.ORIGINAL: style_vector_of_stats(stats)}
-    size = painted_size(scene.height, scene.width, run.config.stylize_scale)
+    stats, original, size = runs.feature_painting(run, scene)
+    vectors = {styles_lib.ORIGINAL: original}
     renderer = style_videos.feature_style_renderer(
         run, scene, stylize.load_decoder(args.decoder or run.record["decoder"]), stats,
         args.chunk)
