@@ -339,6 +339,12 @@ def test_bad_runs_and_ports_end_with_one_line(world, tmp_path, capsys):
     port = s.getsockname()[1]
     _one_line_error(capsys, ["view", "--run", world["nerf"], "--port", str(port)], str(port))
   assert not os.path.exists(os.path.join(world["nerf"], "viewer"))
+  # --styles: a NeRF run has none; a style that is neither a file nor a training style.
+  style = str(world["root"] / "scene" / "train" / "r_0.png")
+  _one_line_error(capsys, ["view", "--run", world["nerf"], "--port", "0", "--styles", style],
+                  "--styles", "NeRF run")
+  _one_line_error(capsys, ["view", "--run", world["run"], "--port", "0", "--styles",
+                           str(tmp_path / "missing.png")], "missing.png", "image file")
 
 
 def test_browser_page_shows_a_new_render_after_a_slider_moves(world, tmp_path):
@@ -371,6 +377,72 @@ def test_nerf_run_is_viewed_without_style_controls(world):
                                   frames.config, frames.scene.white_background,
                                   frames.chunks["full"])
     _assert_same(frame, to_uint8(out["rgb"]))
+  finally:
+    probe.close()
+    viewer.stop()
+
+
+def untrained_feature_run(run_dir, nerf_run, decoder, data):
+  """A feature run folder as `features train` leaves it (with its rendered statistics), with
+  untrained feature params on the NeRF run."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import features
+  config = config_lib.FeatureConfig(nerf=NERF, scene_box=1.5, dim=8, width=16, hash_levels=4,
+                                    hash_table_size=2 ** 10, hash_min_res=4, hash_max_res=32,
+                                    top_k=4, stylize_scale=2)
+  runs.prepare_run_dir(run_dir, "features", {
+      "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
+      "nerf_run": os.path.abspath(nerf_run), "decoder": os.path.abspath(decoder)})
+  rng = np.random.default_rng(2)
+  stats = np.stack([rng.normal(size=512), rng.uniform(0.5, 2.0, size=512)]).astype(np.float32)
+  np.save(os.path.join(run_dir, runs.RENDERED_STATS.format(step=2)), stats)
+  ckpts = checkpoint.Checkpoints(run_dir)
+  ckpts.save(2, state_lib.checkpoint_tree(features.init_state(
+      config, runs.load_run(nerf_run, "nerf").params)))
+  ckpts.close()
+  return run_dir
+
+
+def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, tmp_path):
+  """A feature run: its frames are the feature field's renders stylized in 3D and painted by
+  its decoder; --styles images come first in the menus, uploads are cover-cropped as the
+  decoder paints, and the strength slider blends towards the scene's own statistics."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import style_videos, stylize
+  from msnerf_jax.data.images import decode_image
+  from msnerf_jax.data.stylized import style_vector_of
+  from msnerf_jax.models import vgg
+  from conftest import fake_decoder
+  from test_multistyle import write_style
+  decoder = fake_decoder(tmp_path / "decoder")
+  run = untrained_feature_run(str(tmp_path / "ff"), world["nerf"], decoder,
+                              config_lib.DataConfig(path=str(world["root"] / "scene")))
+  red = write_style(tmp_path / "red.png", (200, 30, 30))
+  viewer = server_lib.open_viewer(run, port=0, log=lambda _: None, style_paths=[red])
+  probe = probe_lib.Probe(viewer.url)
+  try:
+    frames = viewer.frames
+    assert list(frames.styles) == ["red", "original"]
+    view = frames.start_request().view
+    probe.camera(view.wxyz, view.position, view.fov, 320, 320)
+    probe.wait_for(lambda: "strength" in probe.components, 30, "controls")
+    stats, original, size = runs.feature_painting(frames.run, frames.scene)
+    paint = style_videos.feature_style_renderer(frames.run, frames.scene,
+                                                stylize.load_decoder(decoder), stats)
+    camera = frames.camera(view, "full")
+    _assert_same(_full_frame(probe, viewer, 320, 320, 0),
+                 to_uint8(paint(camera, [frames.styles["red"]])[0]))
+    # Half strength: half the style's statistics, half the scene's.
+    n = probe.frame_count()
+    probe.set("strength", 0.5)
+    _assert_same(_full_frame(probe, viewer, 320, 320, n),
+                 to_uint8(paint(camera, [0.5 * frames.styles["red"] + 0.5 * original])[0]))
+    # An upload is cropped to the size the decoder paints, as per-frame AdaIN crops it.
+    png = open(write_style(tmp_path / "blue.png", (20, 40, 220)), "rb").read()
+    vector = frames.upload_style(png, "blue.png")
+    want = style_vector_of(vgg.load_vgg_params(), decode_image(png, "blue.png", max_side=1024),
+                           size)
+    np.testing.assert_allclose(vector, want, rtol=1e-5, atol=1e-5)
   finally:
     probe.close()
     viewer.stop()

@@ -7,7 +7,8 @@ def register(commands, formatter):
   p = commands.add_parser(
       "view", formatter_class=formatter,
       help="look around a run in the browser: orbit, styles, blends, strength, uploads",
-      description="Serves a local web page (viser) that renders a NeRF or multi-style run from "
+      description="Serves a local web page (viser) that renders a NeRF, multi-style or feature "
+                  "run from "
                   "the browser's camera: a low-resolution frame while the camera moves, the "
                   "full one when it stops. Style menus, a blend slider, a strength slider and "
                   "an upload field for any style image; buttons to snap to the nearest "
@@ -16,7 +17,12 @@ def register(commands, formatter):
                   "Needs the viewer extra: pip install \"msnerf-jax[viewer]\".",
       epilog="example: msnerf view --run runs/lego_pipeline/multistyle  (then open the printed "
              "address)")
-  p.add_argument("--run", required=True, help="a NeRF or multi-style run folder")
+  p.add_argument("--run", required=True, help="a NeRF, multi-style or feature run folder")
+  p.add_argument("--styles", nargs="+", default=[], metavar="IMG",
+                 help="style images added to the style menus (a multi-style or feature run)")
+  p.add_argument("--decoder", default=None,
+                 help="a feature run: the AdaIN run whose decoder paints it (default: the "
+                      "one it was trained with)")
   p.add_argument("--port", type=int, default=8080, help="port to serve on (0: any free port)")
   p.add_argument("--host", default="127.0.0.1",
                  help="address to listen on: 127.0.0.1 (this machine only) unless you choose "
@@ -35,7 +41,8 @@ def cmd_view(args):
     raise UserError(f"the viewer needs viser ({e.name} is not installed): "
                     "pip install \"msnerf-jax[viewer]\"") from None
   print(f"msnerf view: loading {args.run}")
-  viewer = server.open_viewer(args.run, args.out, args.host, args.port)
+  viewer = server.open_viewer(args.run, args.out, args.host, args.port,
+                              style_paths=args.styles, decoder_dir=args.decoder)
   where = ("this machine only" if server.is_loopback(args.host)
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "

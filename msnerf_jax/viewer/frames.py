@@ -4,12 +4,17 @@ two levels (a quick low-resolution frame while the camera moves, the full one wh
 A frame is `render.render_image` of the camera's rays, cut into bands of one rendering chunk
 so that a full frame can be abandoned between bands when a newer request arrives. Every band
 is one jitted call of a fixed size per level, so a level compiles once (`warm_up`).
+
+A feature run's frame is its feature map of the camera stylized and painted by its decoder
+(`style_videos.feature_style_renderer`, AdaIN in 3D): any style image, blends and strengths
+at once; it is drawn whole (the decoder reads the whole map), so only the steps before and
+after the feature render can be abandoned.
 """
 
 import dataclasses
 import threading
 import time
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +24,7 @@ from msnerf_jax import render as render_lib
 from msnerf_jax import styles as styles_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
-from msnerf_jax.data.stylized import ORIGINAL, style_vector_of
+from msnerf_jax.data.stylized import ORIGINAL, style_name, style_vector_of
 from msnerf_jax.errors import UserError
 from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
@@ -68,9 +73,23 @@ class Frames:
     pixels: {"low": n, "full": n} pixel budgets of the two levels.
   """
 
-  def __init__(self, run: Run, scene: Scene):
+  def __init__(self, run: Run, scene: Scene, style_paths: Sequence[str] = (),
+               decoder_dir: Optional[str] = None):
+    """style_paths: style images added to the style table (any run with styles); decoder_dir:
+    the AdaIN run that paints a feature run (default: the one it was trained with)."""
     self.run, self.scene = run, scene
-    if run.kind == "multistyle":
+    self._painted_size = None  # what a style picture is cover-cropped to (feature runs).
+    self._paint = None
+    if run.kind == "features":
+      # pylint: disable=g-import-not-at-top
+      from msnerf_jax import runs, style_videos, stylize
+      stats, original, self._painted_size = runs.feature_painting(run, scene)
+      self.config = run.config.nerf
+      # Its "original" is the scene's own statistics: the strength slider blends towards it.
+      self.styles = {ORIGINAL: original}
+      self._paint = style_videos.feature_style_renderer(
+          run, scene, stylize.load_decoder(decoder_dir or run.record["decoder"]), stats)
+    elif run.kind == "multistyle":
       self.field, self.config = MultistyleField(run.config), run.config.nerf
       self.styles: Dict[str, np.ndarray] = style_vectors(run)
     elif run.kind == "nerf":
@@ -78,6 +97,17 @@ class Frames:
       self.styles = {}
     else:
       raise UserError(f"{run.run_dir}: a {run.kind!r} run has no scene to view")
+    if style_paths and not self.styles:
+      raise UserError(f"--styles: {run.run_dir} is a NeRF run, it has no styles")
+    # Given style images first: the page opens in the first one (named for its file, apart
+    # from a training style of that name).
+    cache: Dict[str, Any] = {}
+    given = {}
+    for path in style_paths:
+      name = style_name(path) if style_name(path) not in self.styles else path
+      given[name] = styles_lib.resolve_style(path, self.styles, cache, self._painted_size)
+    self.styles = {**given, **{k: v for k, v in self.styles.items() if k not in given}}
+    self._encoder = cache.get("encoder")
     self.params = jax.device_put(run.params)
     full = scene.height * scene.width
     self.pixels = {"low": max(1, full // LOW_LEVEL_DIVISOR), "full": full}
@@ -89,7 +119,6 @@ class Frames:
     self.chunks = {"low": slack(self.pixels["low"]), "full": -(-slack(full) // bands)}
     # Re-entrant: between two bands the scheduler may draw other clients' low frames.
     self._lock = threading.RLock()
-    self._encoder = None
 
   @property
   def has_styles(self) -> bool:
@@ -120,7 +149,7 @@ class Frames:
       if self._encoder is None:
         from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
         self._encoder = vgg.load_vgg_params()
-      return style_vector_of(self._encoder, image)
+      return style_vector_of(self._encoder, image, self._painted_size)
 
   def camera(self, view: View, level: str):
     """The library camera (cameras.Camera) of a view at a level's pixel budget."""
@@ -131,6 +160,8 @@ class Frames:
              cancelled: Callable[[], bool] = lambda: False) -> Optional[np.ndarray]:
     """The frame of a request at a level: uint8 [H, W, 3], or None when `cancelled()` became
     true between two bands."""
+    if self._paint is not None:
+      return self._render_features(request, level, cancelled)
     rays = self.scene.camera_rays(self.camera(request.view, level))
     shape = rays["origins"].shape[:-1]
     flat = {k: np.asarray(v).reshape(-1, *v.shape[len(shape):]) for k, v in rays.items()}
@@ -146,6 +177,15 @@ class Frames:
                                       self.scene.white_background, chunk, styles)
         bands.append(out["rgb"] if styles is None else out["rgb"][0])
     return images_lib.to_uint8(np.concatenate(bands).reshape(*shape, 3))
+
+  def _render_features(self, request: Request, level: str, cancelled: Callable[[], bool]
+                       ) -> Optional[np.ndarray]:
+    """A feature run's frame (see render): one feature render, AdaIN and decode."""
+    with self._lock:
+      if cancelled():
+        return None
+      frame = self._paint(self.camera(request.view, level), [request.style])[0]
+    return None if cancelled() else images_lib.to_uint8(frame)
 
   def start_request(self) -> Request:
     """The first training view, in the first style (what a new page shows)."""

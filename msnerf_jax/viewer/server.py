@@ -12,7 +12,7 @@ import os
 import socket
 import threading
 import time
-from typing import Any, Callable, Dict, Optional
+from typing import Any, Callable, Dict, Optional, Sequence
 
 import numpy as np
 import viser
@@ -28,7 +28,7 @@ from msnerf_jax.viewer.scheduler import Scheduler
 KEYFRAMES = "camera_path.json"
 UPLOAD_PREFIX = "upload: "
 MAX_UPLOADS_PER_CLIENT = 8
-VIEWABLE = ("nerf", "multistyle")
+VIEWABLE = ("nerf", "multistyle", "features")
 
 
 def check_port(host: str, port: int) -> None:
@@ -189,6 +189,9 @@ class ViewerServer:
             "strength", 0.0, 1.0, 0.01, 1.0, disabled=ORIGINAL not in frames.styles,
             hint="0: the original scene, 1: the full style" if ORIGINAL in frames.styles
             else "this run has no 'original' style to blend from")
+        if frames.run.kind == "features":
+          gui.add_markdown("A feature field (AdaIN in 3D): it paints any style image. "
+                           "Upload one, or give `--styles` to `msnerf view`.")
         state.gui["upload"] = gui.add_upload_button(
             "upload a style image", mime_type="image/*",
             hint="any painting or photo: its style vector is computed here")
@@ -304,12 +307,17 @@ def keyframes_dict(cameras) -> Dict[str, Any]:
 
 
 def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.0.1",
-                port: int = 8080, log: Callable[[str], Any] = print) -> ViewerServer:
-  """Loads a run folder (a NeRF or multi-style run), compiles its frames and starts serving
-  it; `out_dir` (default RUN/viewer) receives saved views and keyframes.
+                port: int = 8080, log: Callable[[str], Any] = print,
+                style_paths: Sequence[str] = (), decoder_dir: Optional[str] = None
+                ) -> ViewerServer:
+  """Loads a run folder (a NeRF, multi-style or feature run), compiles its frames and starts
+  serving it; `out_dir` (default RUN/viewer) receives saved views and keyframes. style_paths:
+  style images added to the style menus; decoder_dir: the AdaIN run that paints a feature run
+  (default: its own).
 
   Raises:
-    UserError for an unreadable run, a run without a scene, or a port that cannot be bound.
+    UserError for an unreadable run, a run without a scene, a bad style image or decoder, or
+    a port that cannot be bound.
   """
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import runs
@@ -320,7 +328,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   check_port(host, port)
   run = runs.load_run(run_dir, kind)
   scene = runs.scene_of(run)[0]
-  frames = Frames(run, scene)
+  frames = Frames(run, scene, style_paths, decoder_dir)
   log(f"{run_dir}: {kind} run at step {run.step}, {scene.width}x{scene.height} frames"
       + (f", styles: {', '.join(frames.styles)}" if frames.has_styles else ""))
   frames.warm_up(log)
