@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from msnerf_jax import adain, consistency, metrics, stylize, video, views
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.feature_style import decode_styles, painted_size, style_vector_of_stats
+from msnerf_jax.feature_style import painted_size, style_vector_of_stats
 from msnerf_jax.models import vgg
 from msnerf_jax.runs import CONTENT_STATS, content_stats, load_run, load_run_and_scene
 
@@ -78,6 +78,9 @@ def main():
                       help="content statistics the field's features are normalised by: of its "
                            "renders of the training views (the library's), or the encoder's "
                            "of the training views (before 2 December 2026)")
+  parser.add_argument("--grids", type=int, default=1,
+                      help="cell grids each feature-field frame is averaged over "
+                           "(views.render_feature_styles' grids: 1, 2 or 4)")
   parser.add_argument("--out", default=None, help="output folder (default: RUN/compare)")
   args = parser.parse_args()
   t0 = time.time()
@@ -95,8 +98,10 @@ def main():
                              .round().astype(int)]
   base = [views.render_view(scene, nerf.params, nerf.config, c2w) for c2w in
           tqdm(poses, desc="NeRF path", leave=False)]
-  fmaps = [views.render_feature_map(scene, run.params, run.config, c2w) for c2w in
+  fmaps = [views.feature_maps(scene, run.params, run.config, c2w, args.grids) for c2w in
            tqdm(poses, desc="feature path", leave=False)]
+  paint = lambda maps, vecs: views.paint_feature_maps(maps, decoder, stats, vecs, scene.height,
+                                                      scene.width, scale)
   ph, pw = painted_size(scene.height, scene.width, scale)
   pictures = [images_lib.read_image(p, max_side=1024) for p in args.styles]
   names = [os.path.splitext(os.path.basename(p))[0] for p in args.styles]
@@ -109,10 +114,8 @@ def main():
     per_frame = [whiten(stylize.stylize_image(decoder, encoder, b["rgb"], [picture],
                                               scale=scale), b["accumulation"], white)
                  for b in base]
-    feature = [whiten(decode_styles(decoder, f["features"], np.ones_like(f["accumulation"]),
-                                    stats, vector[None, :512], vector[None, 512:], 1.0,
-                                    scene.height, scene.width, scale)[0],
-                      b["accumulation"], white) for f, b in zip(fmaps, base)]
+    feature = [whiten(paint(f, vector[None])[0], b["accumulation"], white)
+               for f, b in zip(fmaps, base)]
     small = stylize.cover_crop(picture, scene.height, scene.width)
     for method, frames in (("feature-field", feature), ("adain-per-frame", per_frame)):
       row = {"method": method, "style": name}
@@ -142,19 +145,15 @@ def main():
   agree = []
   for v in held:
     photo = views.render_view(scene, nerf.params, nerf.config, int(v))["rgb"]
-    f = views.render_feature_map(scene, run.params, run.config, int(v))
-    ours = decode_styles(decoder, f["features"], np.ones_like(f["accumulation"]), stats,
-                         plain[None, :512], plain[None, 512:], 1.0, scene.height, scene.width,
-                         scale)[0]
+    ours = paint(views.feature_maps(scene, run.params, run.config, int(v), args.grids),
+                 plain[None])[0]
     theirs = stylize.stylize_image(decoder, encoder, photo, [photo], alpha=0.0, scale=scale,
                                    content_stats=(stats[0][None], stats[1][None]))
     agree.append(psnr(ours, theirs))
   # Cost of switching style on one frame: cached features vs per-frame AdaIN (compiled first).
   f0, photo0 = fmaps[0], base[0]["rgb"]
   def feature_switch():
-    return decode_styles(decoder, f0["features"], np.ones_like(f0["accumulation"]), stats,
-                         vectors[:1, :512], vectors[:1, 512:], 1.0, scene.height, scene.width,
-                         scale)
+    return paint(f0, vectors[:1])
   def per_frame_switch():
     return stylize.stylize_image(decoder, encoder, photo0, [pictures[0]], scale=scale)
   timing = {}
@@ -176,7 +175,7 @@ def main():
             "alpha0_psnr": agree, "alpha0_psnr_mean": float(np.mean(agree)), **timing,
             "switch_ratio": timing["feature_switch_s"] / timing["per_frame_s"],
             "run": os.path.abspath(args.features), "step": run.step, "frames": args.frames,
-            "decoder": os.path.abspath(decoder_dir), "stats": args.stats,
+            "decoder": os.path.abspath(decoder_dir), "stats": args.stats, "grids": args.grids,
             "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
                         f"jax {jax.__version__} on {jax.devices()[0].platform}",
             "seconds": time.time() - t0}

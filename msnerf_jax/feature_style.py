@@ -17,6 +17,7 @@ import numpy as np
 
 from msnerf_jax.adain import EPS
 from msnerf_jax.data import images as images_lib
+from msnerf_jax.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
 
 # (mean, std) channel statistics, each broadcastable to the features' [..., C].
@@ -66,23 +67,41 @@ def painted_size(height: int, width: int, scale: int) -> Tuple[int, int]:
   return -(-height * scale // CELL) * CELL, -(-width * scale // CELL) * CELL
 
 
-def cell_grid(height: int, width: int, scale: int, per_side: int = 2
+# The cell-grid offsets (rows, cols; enlarged pixels) a view's decodes are averaged over
+# (views.render_feature_styles' `grids`): the grid moved by half a cell along each axis.
+GRID_OFFSETS = {1: ((0, 0),), 2: ((0, 0), (4, 4)), 4: ((0, 0), (0, 4), (4, 0), (4, 4))}
+DEFAULT_GRIDS = 1
+
+
+def grid_offsets(grids: int) -> Tuple[Tuple[int, int], ...]:
+  """The offsets of GRID_OFFSETS[grids]; UserError for another number."""
+  if grids not in GRID_OFFSETS:
+    raise UserError(f"--grids {grids}: choose from {', '.join(map(str, GRID_OFFSETS))}")
+  return GRID_OFFSETS[grids]
+
+
+def cell_grid(height: int, width: int, scale: int, per_side: int = 2,
+              offset: Tuple[int, int] = (0, 0), pad: int = 0
               ) -> Tuple[np.ndarray, np.ndarray]:
   """Sub-pixel positions of the rays a relu4_1 cell averages: an image of height x width
   stylized `scale` x enlarged (and padded to multiples of CELL) has ceil(scale h / 8) x
   ceil(scale w / 8) cells, each over an 8 x 8 block of the enlarged image, that is 8 / scale
   pixels of the view; per_side x per_side rays sit at the centres of its sub-blocks.
 
+  offset: (rows, cols) enlarged pixels the grid starts above and left of the view's corner;
+  pad: enlarged pixels added below and right before the cells are counted (pad >= offset:
+  the moved grid still covers the view; the same pad gives every offset the same shape).
+
   Returns: rows, cols [cells_h, cells_w, per_side ** 2] in the view's pixel coordinates
   (pixel centres at integers).
   """
   images_lib.check_scale(scale)
-  ch, cw = -(-height * scale // CELL), -(-width * scale // CELL)
+  ch, cw = -(-(height * scale + pad) // CELL), -(-(width * scale + pad) // CELL)
   sub = (np.arange(per_side) + 0.5) / per_side
-  def axis(n):  # [n, per_side]: the block's start plus the sub-block centres, in view pixels.
-    return (CELL * (np.arange(n)[:, None] + sub)) / scale - 0.5
-  rows = np.broadcast_to(axis(ch)[:, None, :, None], (ch, cw, per_side, per_side))
-  cols = np.broadcast_to(axis(cw)[None, :, None, :], (ch, cw, per_side, per_side))
+  def axis(n, start):  # [n, per_side]: block start plus sub-block centres, in view pixels.
+    return (CELL * (np.arange(n)[:, None] + sub) - start) / scale - 0.5
+  rows = np.broadcast_to(axis(ch, offset[0])[:, None, :, None], (ch, cw, per_side, per_side))
+  cols = np.broadcast_to(axis(cw, offset[1])[None, :, None, :], (ch, cw, per_side, per_side))
   return (rows.reshape(ch, cw, -1).astype(np.float32),
           cols.reshape(ch, cw, -1).astype(np.float32))
 
@@ -115,7 +134,8 @@ decode_styles_jit = jax.jit(_decode, static_argnames=("upsample",))
 
 def decode_styles(decoder, feature_map: np.ndarray, accumulation: np.ndarray,
                   content_stats: Stats, style_means: np.ndarray, style_stds: np.ndarray,
-                  alpha: float, height: int, width: int, scale: int) -> np.ndarray:
+                  alpha: float, height: int, width: int, scale: int,
+                  offset: Tuple[int, int] = (0, 0)) -> np.ndarray:
   """One feature map painted in K styles: [K, height, width, 3] float32 in [0, 1].
 
   The decoder paints the cells at scale x the view's size (cropped from the padding), and
@@ -123,13 +143,15 @@ def decode_styles(decoder, feature_map: np.ndarray, accumulation: np.ndarray,
 
   Args:
     decoder: stylize.Decoder; feature_map [h, w, 512], accumulation [h, w].
+    offset: the (rows, cols) enlarged pixels the map's cell grid starts above and left of
+      the view (cell_grid's): the painting is cropped from there.
     style_means, style_stds: [K, 512] (e.g. blends: adain.blend_stats).
   """
   out = np.asarray(decode_styles_jit(decoder.params, jnp.asarray(feature_map),
                                      jnp.asarray(accumulation), content_stats,
                                      jnp.asarray(style_means), jnp.asarray(style_stds),
                                      jnp.float32(alpha), upsample=decoder.config.upsample))
-  out = out[:, :height * scale, :width * scale]
+  out = out[:, offset[0]:offset[0] + height * scale, offset[1]:offset[1] + width * scale]
   if scale > 1:
     out = np.stack([images_lib.resize(o, height, width) for o in out])
   return out

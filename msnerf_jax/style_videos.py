@@ -21,17 +21,20 @@ def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRe
 
 
 def feature_style_renderer(run: Any, scene: Any, decoder: Any, content_stats: Any,
-                           chunk: Optional[int] = None) -> StyleRenderer:
+                           chunk: Optional[int] = None, grids: Optional[int] = None
+                           ) -> StyleRenderer:
   """Renders one camera of a loaded feature run in K styles: one feature render, K AdaIN
-  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]. On
+  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]; on
+  `grids` cell grids (views.render_feature_styles'; None: its default). On
   white-background (Blender) scenes the frames are put over white by the NeRF's opacity,
   as the stylized views a multi-style run learns are."""
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.views import render_feature_styles, render_view
+  grid_args = {} if grids is None else {"grids": grids}
 
   def render(camera, styles):
     frames = render_feature_styles(scene, run.params, run.config, camera, decoder,
-                                   content_stats, np.stack(styles), chunk)
+                                   content_stats, np.stack(styles), chunk, **grid_args)
     if not scene.white_background:
       return frames
     acc = render_view(scene, run.params["nerf"], run.config.nerf, camera,

@@ -210,6 +210,35 @@ def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_feature
   np.testing.assert_allclose(original, plain, atol=1e-5)
 
 
+def test_frames_averaged_over_four_cell_grids_follow_half_cell_shifts_exactly(feature_world):
+  """The decoder pins its strokes to the relu4_1 cell grid, which stays with the camera: a
+  view moved by half a cell is painted from other features, not the same ones moved. On
+  the four grids {0, 4}^2 (enlarged pixels) the moved view's grids are the first view's
+  grids moved (one of them by a whole cell, to which the decoder is equivariant), so away
+  from the borders its frame is the first frame moved, which one grid is not."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import cameras, stylize, views
+  run = msnerf_jax.load_run(feature_world["run"])
+  scene = feature_world["scene"]
+  decoder = stylize.load_decoder(feature_world["decoder"])
+  stats = runs.content_stats(run)
+  style = np.concatenate([np.full(512, 0.5), np.full(512, 1.5)]).astype(np.float32)
+  size, shift = 64, 2  # half a cell: 4 pixels of the view enlarged 2x.
+  K = scene.K.copy()
+  K[:2, 2] *= size / 16
+  moved_K = K.copy()
+  moved_K[0, 2] += shift  # the picture moves `shift` pixels right.
+  frames = {}
+  for grids in (1, 4):
+    frames[grids] = [views.render_feature_styles(
+        scene, run.params, run.config, cameras.Camera(scene.c2w[4], k, size, size), decoder,
+        stats, style[None], grids=grids)[0] for k in (K, moved_K)]
+  inner = lambda f: f[20:-20, 20:-20]  # 5 cells: the decoder's reach is under 4.
+  diff = {g: float(np.abs(inner(b[:, shift:]) - inner(a[:, :-shift])).max())
+          for g, (a, b) in frames.items()}
+  assert diff[4] < 1e-5 < 1e-3 < diff[1], diff
+
+
 def test_msnerf_render_paints_a_feature_run_in_any_style_image(feature_world, tmp_path):
   style = write_style(tmp_path / "red.png", (200, 30, 30))
   out = str(tmp_path / "video")

@@ -20,6 +20,16 @@ def add_camera_path_arguments(parser) -> None:
                       help="frames per second (default: the camera path's, else 24)")
 
 
+def add_grids_argument(parser) -> None:
+  """--grids of the verbs that paint a feature run."""
+  parser.add_argument("--grids", type=int, choices=(1, 2, 4), default=None,
+                      help="feature runs: relu4_1 cell grids each frame is painted on and "
+                           "averaged over, the grid moved by half a cell (the decoder pins "
+                           "its strokes to the grid, which moves with the camera): more "
+                           "grids, steadier strokes, as many times the cost (default: "
+                           "views.render_feature_styles')")
+
+
 def check_path_options(frames: int, fps) -> None:
   """UserError unless --frames is >= 0 and --fps (when given) positive."""
   from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top

@@ -5,7 +5,8 @@ import os
 import time
 
 from msnerf_jax import config as config_lib
-from msnerf_jax.cli.common import (add_camera_path_arguments, add_parallel_arguments,
+from msnerf_jax.cli.common import (add_camera_path_arguments, add_grids_argument,
+                                   add_parallel_arguments,
                                    load_run_and_scene, output_stem, print_summary,
                                    print_training_summary, render_cameras, start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
@@ -164,6 +165,7 @@ def register(commands, formatter):
   p.add_argument("--decoder", default=None, metavar="ADAIN_RUN",
                  help="feature runs: the AdaIN run that paints the features (default: the one "
                       "the run was trained for)")
+  add_grids_argument(p)
   add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_render)
@@ -293,7 +295,7 @@ def cmd_render(args):
     vectors = {styles_lib.ORIGINAL: original}
     renderer = style_videos.feature_style_renderer(
         run, scene, stylize.load_decoder(args.decoder or run.record["decoder"]), stats,
-        args.chunk)
+        args.chunk, args.grids)
   else:
     run, scene = load_run_and_scene(args.run, "multistyle")
     vectors, size = style_vectors(run), None

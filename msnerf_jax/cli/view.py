@@ -1,5 +1,6 @@
 """`msnerf view`: a run in the browser (msnerf_jax.viewer)."""
 
+from msnerf_jax.cli.common import add_grids_argument
 from msnerf_jax.errors import UserError
 
 
@@ -23,6 +24,7 @@ def register(commands, formatter):
   p.add_argument("--decoder", default=None,
                  help="a feature run: the AdaIN run whose decoder paints it (default: the "
                       "one it was trained with)")
+  add_grids_argument(p)
   p.add_argument("--port", type=int, default=8080, help="port to serve on (0: any free port)")
   p.add_argument("--host", default="127.0.0.1",
                  help="address to listen on: 127.0.0.1 (this machine only) unless you choose "
@@ -42,7 +44,8 @@ def cmd_view(args):
                     "pip install \"msnerf-jax[viewer]\"") from None
   print(f"msnerf view: loading {args.run}")
   viewer = server.open_viewer(args.run, args.out, args.host, args.port,
-                              style_paths=args.styles, decoder_dir=args.decoder)
+                              style_paths=args.styles, decoder_dir=args.decoder,
+                              grids=args.grids)
   where = ("this machine only" if server.is_loopback(args.host)
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "

@@ -74,9 +74,11 @@ class Frames:
   """
 
   def __init__(self, run: Run, scene: Scene, style_paths: Sequence[str] = (),
-               decoder_dir: Optional[str] = None):
+               decoder_dir: Optional[str] = None, grids: Optional[int] = None):
     """style_paths: style images added to the style table (any run with styles); decoder_dir:
-    the AdaIN run that paints a feature run (default: the one it was trained with)."""
+    the AdaIN run that paints a feature run (default: the one it was trained with); grids:
+    the cell grids its full frames are painted on (views.render_feature_styles'; low frames,
+    drawn while the camera moves, use one)."""
     self.run, self.scene = run, scene
     self._painted_size = None  # what a style picture is cover-cropped to (feature runs).
     self._paint = None
@@ -87,8 +89,9 @@ class Frames:
       self.config = run.config.nerf
       # Its "original" is the scene's own statistics: the strength slider blends towards it.
       self.styles = {ORIGINAL: original}
-      self._paint = style_videos.feature_style_renderer(
-          run, scene, stylize.load_decoder(decoder_dir or run.record["decoder"]), stats)
+      decoder = stylize.load_decoder(decoder_dir or run.record["decoder"])
+      self._paint = {level: style_videos.feature_style_renderer(
+          run, scene, decoder, stats, grids=1 if level == "low" else grids) for level in LEVELS}
     elif run.kind == "multistyle":
       self.field, self.config = MultistyleField(run.config), run.config.nerf
       self.styles: Dict[str, np.ndarray] = style_vectors(run)
@@ -184,7 +187,7 @@ class Frames:
     with self._lock:
       if cancelled():
         return None
-      frame = self._paint(self.camera(request.view, level), [request.style])[0]
+      frame = self._paint[level](self.camera(request.view, level), [request.style])[0]
     return None if cancelled() else images_lib.to_uint8(frame)
 
   def start_request(self) -> Request:

@@ -308,12 +308,12 @@ def keyframes_dict(cameras) -> Dict[str, Any]:
 
 def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.0.1",
                 port: int = 8080, log: Callable[[str], Any] = print,
-                style_paths: Sequence[str] = (), decoder_dir: Optional[str] = None
-                ) -> ViewerServer:
+                style_paths: Sequence[str] = (), decoder_dir: Optional[str] = None,
+                grids: Optional[int] = None) -> ViewerServer:
   """Loads a run folder (a NeRF, multi-style or feature run), compiles its frames and starts
   serving it; `out_dir` (default RUN/viewer) receives saved views and keyframes. style_paths:
-  style images added to the style menus; decoder_dir: the AdaIN run that paints a feature run
-  (default: its own).
+  style images added to the style menus; decoder_dir, grids: the AdaIN run that paints a
+  feature run (default: its own) and on how many cell grids (Frames').
 
   Raises:
     UserError for an unreadable run, a run without a scene, a bad style image or decoder, or
@@ -328,7 +328,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   check_port(host, port)
   run = runs.load_run(run_dir, kind)
   scene = runs.scene_of(run)[0]
-  frames = Frames(run, scene, style_paths, decoder_dir)
+  frames = Frames(run, scene, style_paths, decoder_dir, grids)
   log(f"{run_dir}: {kind} run at step {run.step}, {scene.width}x{scene.height} frames"
       + (f", styles: {', '.join(frames.styles)}" if frames.has_styles else ""))
   frames.warm_up(log)
