@@ -39,7 +39,6 @@ from msnerf_jax import adain, metrics, stylize
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
 
 MARGIN = 16  # enlarged pixels dropped at every border (the decoder's zero/reflect padding).
@@ -47,14 +46,14 @@ GRIDS = {"per-frame": [(0, 0)], "grid-avg 2": [(0, 0), (4, 4)],
          "grid-avg 4": [(0, 0), (0, 4), (4, 0), (4, 4)]}
 
 
+_decode_jit = jax.jit(stylize.decode_with_stats, static_argnames=("upsample",))
+
+
 def make_stylizer(decoder, encoder):
-  @jax.jit
   def stylize_window(window, s_mean, s_std):
     """[H, W, 3] (multiples of 8) -> [H, W, 3]: AdaIN with the window's own statistics."""
-    feats = adain.encode(encoder, window[None])["relu4_1"]
-    target = adain.adain_from_stats(feats, s_mean, s_std)
-    out = decoder_lib.Decoder(decoder.config.upsample).apply(decoder.params, target)
-    return jnp.clip(out[0], 0.0, 1.0)
+    return _decode_jit(decoder.params, encoder, window[None], s_mean, s_std, 1.0,
+                       upsample=decoder.config.upsample)[0]
   return stylize_window
 
 

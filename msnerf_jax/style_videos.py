@@ -29,12 +29,13 @@ def feature_style_renderer(run: Any, scene: Any, decoder: Any, content_stats: An
   white-background (Blender) scenes the frames are put over white by the NeRF's opacity,
   as the stylized views a multi-style run learns are."""
   # pylint: disable=g-import-not-at-top
+  from msnerf_jax.feature_style import DEFAULT_GRIDS
   from msnerf_jax.views import render_feature_styles, render_view
-  grid_args = {} if grids is None else {"grids": grids}
+  grids = grids or DEFAULT_GRIDS
 
   def render(camera, styles):
     frames = render_feature_styles(scene, run.params, run.config, camera, decoder,
-                                   content_stats, np.stack(styles), chunk, **grid_args)
+                                   content_stats, np.stack(styles), chunk, grids)
     if not scene.white_background:
       return frames
     acc = render_view(scene, run.params["nerf"], run.config.nerf, camera,
