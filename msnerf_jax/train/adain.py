@@ -7,7 +7,7 @@ import os
 import queue
 import threading
 import time
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import chex
 import jax
@@ -30,6 +30,8 @@ from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
 KIND = "adain"
+CELL = 8  # pixels of the encoder's input per relu4_1 cell (three 2x poolings).
+SHIFT_MARGIN = 8  # pixels at each border of a crop left out of the shift loss (border effects).
 
 
 # ----------------------------------------------------------------------------- data
@@ -79,8 +81,13 @@ def random_crops(rng: np.random.Generator, pools: Sequence[Sequence[np.ndarray]]
   return out
 
 
+def random_shifts(rng: np.random.Generator, batch: int) -> np.ndarray:
+  """Sub-cell shifts for the shift-consistency loss: [batch, 2] int32 (dy, dx) in [1, CELL)."""
+  return rng.integers(1, CELL, size=(batch, 2)).astype(np.int32)
+
+
 class BatchLoader:
-  """Prepares (content, style) batches for steps [start, end) in a background thread.
+  """Prepares (content, style, shifts) batches for steps [start, end) in a background thread.
 
   The batch of step s is drawn from np.random.default_rng([seed, s]), so a resumed run sees
   the same batches. Errors in the thread are re-raised by `next()`.
@@ -100,7 +107,8 @@ class BatchLoader:
       for step in range(start, end):
         rng = np.random.default_rng([config.seed, step])
         item = (random_crops(rng, content_pools, config.batch, config.size),
-                random_crops(rng, style_pools, config.batch, config.size))
+                random_crops(rng, style_pools, config.batch, config.size),
+                random_shifts(rng, config.batch))
         while not self._stop.is_set():
           try:
             self._queue.put(item, timeout=0.1)
@@ -112,7 +120,7 @@ class BatchLoader:
     except BaseException as e:  # pylint: disable=broad-except
       self._queue.put(e)
 
-  def next(self) -> Tuple[np.ndarray, np.ndarray]:
+  def next(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     item = self._queue.get()
     if isinstance(item, BaseException):
       raise item
@@ -124,14 +132,14 @@ class BatchLoader:
 
 
 class PrefetchedBatches:
-  """The loop's batch function: step -> (content, style) of that step, from a BatchLoader
+  """The loop's batch function: step -> (content, style, shifts) of that step, from a BatchLoader
   started at the first step asked for (where the run resumes) and running to config.steps."""
 
   def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig):
     self._args = (content_pools, style_pools, config)
     self._loader = None
 
-  def __call__(self, step: int) -> Tuple[np.ndarray, np.ndarray]:
+  def __call__(self, step: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     if self._loader is None:
       content_pools, style_pools, config = self._args
       self._loader = BatchLoader(content_pools, style_pools, config, step, config.steps)
@@ -145,15 +153,49 @@ class PrefetchedBatches:
 # ----------------------------------------------------------------------------- losses and step
 
 
+def window(images: jnp.ndarray, corners: jnp.ndarray, side: int) -> jnp.ndarray:
+  """Square windows: images [B, H, W, C], corners [B, 2] int (y, x) -> [B, side, side, C]."""
+  take = lambda image, corner: jax.lax.dynamic_slice(
+      image, (corner[0], corner[1], 0), (side, side, image.shape[-1]))
+  return jax.vmap(take)(images, corners)
+
+
+def shift_loss(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
+               output: jnp.ndarray, style_mean: jnp.ndarray, style_std: jnp.ndarray,
+               shifts: jnp.ndarray, upsample: str) -> jnp.ndarray:
+  """Shift consistency of the stylization: decoding a moved crop moves the strokes with it.
+
+  The window of side S - CELL at (dy, dx) of each content crop is stylized on its own (its
+  relu4_1 cells sit dy, dx pixels off the crop's) and compared with the same window of the
+  crop's stylization `output`, SHIFT_MARGIN pixels from the window's borders left out.
+
+  Args:
+    content, output: [B, S, S, 3]; style_mean, style_std: [B, 512] (relu4_1 statistics).
+    shifts: [B, 2] int (dy, dx), each in [1, CELL).
+  Returns:
+    [] mean squared pixel difference.
+  """
+  side = content.shape[1] - CELL
+  moved = adain_lib.encode(encoder_params, window(content, shifts, side))["relu4_1"]
+  target = jax.lax.stop_gradient(adain_lib.adain_from_stats(moved, style_mean, style_std))
+  moved_out = decoder_lib.Decoder(upsample).apply(decoder_params, target)
+  inner = slice(SHIFT_MARGIN, side - SHIFT_MARGIN)
+  same = window(output, shifts, side)
+  return jnp.mean(jnp.square(moved_out[:, inner, inner] - same[:, inner, inner]))
+
+
 def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style: jnp.ndarray,
-           config: config_lib.AdainConfig) -> Tuple[jnp.ndarray, Dict[str, jnp.ndarray]]:
-  """AdaIN training loss (Huang & Belongie eq. 11-13).
+           config: config_lib.AdainConfig, shifts: Optional[jnp.ndarray] = None
+           ) -> Tuple[jnp.ndarray, Dict[str, jnp.ndarray]]:
+  """AdaIN training loss (Huang & Belongie eq. 11-13), plus the optional shift consistency.
 
   Args:
     content, style: [B, S, S, 3] in [0, 1].
+    shifts: [B, 2] int sub-cell shifts (`random_shifts`); read when config.shift_weight > 0.
   Returns:
-    (total [], {"loss", "content", "style"}): content = MSE(relu4_1(g(t)), t) with
-    t = AdaIN(f(c), f(s)); style = sum over relu1_1..relu4_1 of MSE of means + MSE of stds.
+    (total [], {"loss", "content", "style"[, "shift"]}): content = MSE(relu4_1(g(t)), t) with
+    t = AdaIN(f(c), f(s)); style = sum over relu1_1..relu4_1 of MSE of means + MSE of stds;
+    shift = `shift_loss`, weighted by config.shift_weight.
   """
   chex.assert_equal_shape([content, style])
   encoder_params = jax.lax.stop_gradient(encoder_params)  # frozen: XLA drops its backward.
@@ -167,7 +209,14 @@ def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style
   out_stats = {name: adain_lib.channel_stats(out_feats[name]) for name in vgg.STYLE_LAYERS}
   style_loss = adain_lib.style_loss(out_stats, jax.lax.stop_gradient(target_stats))
   total = config.content_weight * content_loss + config.style_weight * style_loss
-  return total, {"loss": total, "content": content_loss, "style": style_loss}
+  metrics = {"content": content_loss, "style": style_loss}
+  if config.shift_weight > 0:
+    chex.assert_shape(shifts, (content.shape[0], 2))
+    mean, std = jax.lax.stop_gradient(target_stats["relu4_1"])
+    metrics["shift"] = shift_loss(decoder_params, encoder_params, content, output, mean, std,
+                                  shifts, config.upsample)
+    total = total + config.shift_weight * metrics["shift"]
+  return total, {"loss": total, **metrics}
 
 
 def make_optimizer(config: config_lib.AdainConfig) -> optax.GradientTransformation:
@@ -180,19 +229,21 @@ def step_config(config: config_lib.AdainConfig) -> config_lib.AdainConfig:
   """`config` with only the fields the jitted step reads (losses, optimizer, upsampling) kept,
   so runs that differ in steps, sizes or bookkeeping share one compiled step."""
   return dataclasses.replace(config, steps=1, size=0, resize=0, batch=0, holdout_every=0, seed=0,
-                             sample_every=1, checkpoint_every=1, keep_checkpoints=1)
+                             sample_every=1, checkpoint_every=1, keep_checkpoints=1, init_from="")
 
 
 @functools.lru_cache(maxsize=8)
 def make_train_step(config: config_lib.AdainConfig):
-  """jitted (params, opt_state, encoder_params, content, style) -> (params, opt_state, metrics).
+  """jitted (params, opt_state, encoder_params, content, style[, shifts]) -> (params, opt_state,
+  metrics).
 
   Cached per (frozen) config, so a resumed or repeated run in one process compiles once.
   """
   optimizer = make_optimizer(config)
 
-  def step(params, opt_state, encoder_params, content, style):
-    grads, metrics = jax.grad(losses, has_aux=True)(params, encoder_params, content, style, config)
+  def step(params, opt_state, encoder_params, content, style, shifts=None):
+    grads, metrics = jax.grad(losses, has_aux=True)(params, encoder_params, content, style, config,
+                                                    shifts)
     updates, opt_state = optimizer.update(grads, opt_state, params)
     return optax.apply_updates(params, updates), opt_state, metrics
 
@@ -250,6 +301,21 @@ def collect_content(content_dirs: Sequence[str], holdout_every: int) -> Tuple[Li
   return groups, held
 
 
+def initial_decoder(config: config_lib.AdainConfig, resuming: bool = False) -> Any:
+  """The decoder params a new run starts from: a random init, or with `init_from` the latest
+  checkpoint of that AdaIN run (same encoder and upsampling; a UserError naming it otherwise).
+  A resumed run restores its own checkpoint, so the random init only gives the structure."""
+  if not config.init_from or resuming:
+    return decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
+  source = runs_lib.load_run(config.init_from, KIND)
+  run_file = os.path.join(config.init_from, runs_lib.RUN_FILE)
+  for name in ("encoder", "upsample"):
+    theirs, ours = getattr(source.config, name), getattr(config, name)
+    if theirs != ours:
+      raise UserError(f"{run_file}: decoder made with {name} {theirs!r}, this run uses {ours!r}")
+  return jax.tree_util.tree_map(jnp.asarray, source.params)
+
+
 @run_lock.released_after
 def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
           run_dir: str, progress: bool = True, log=print) -> TrainResult:
@@ -266,6 +332,13 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     raise UserError(f"--size {config.size}: must be a multiple of 8, at least 16")
   if config.batch < 1 or config.steps < 1:
     raise UserError("--batch and --steps must be positive")
+  if not 0.0 <= config.shift_weight < float("inf"):
+    raise UserError(f"--shift-weight {config.shift_weight}: must be a number >= 0")
+  if config.shift_weight > 0 and config.size < CELL + 2 * SHIFT_MARGIN + CELL:
+    raise UserError(f"--size {config.size}: the shift loss needs crops of at least "
+                    f"{CELL + 2 * SHIFT_MARGIN + CELL} pixels")
+  saved = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR)
+  init_params = initial_decoder(config, resuming=os.path.isdir(saved) and bool(os.listdir(saved)))
   # Validate every input before touching the run folder.
   groups, held = collect_content(content_dirs, config.holdout_every)
   style_paths = images_lib.list_images(style_dir)
@@ -336,15 +409,15 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
       check_finite(state.params, step)
       last_good = step
 
-  params = decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
-  state = state_lib.create_state(params, make_optimizer(config))
+  state = state_lib.create_state(init_params, make_optimizer(config))
   state = state.replace(step=np.asarray(0, np.int64))  # the step as AdaIN checkpoints hold it.
   batches = PrefetchedBatches(content_pools, style_pools, config)
   try:
     summary = loop_lib.fit(state, step_fn, batches, run_dir=run_dir, steps=config.steps,
                            checkpoint_every=config.checkpoint_every,
                            keep_checkpoints=config.keep_checkpoints,
-                           parallel=data_parallel(1), desc="adain", progress=progress, on_step=on_step, shown=("content", "style"),
+                           parallel=data_parallel(1), desc="adain", progress=progress, on_step=on_step,
+                           shown=("content", "style") + (("shift",) if config.shift_weight > 0 else ()),
                            history=False)
   finally:
     batches.close()
