@@ -5,15 +5,17 @@ reference code trains, against random backgrounds (`random_background`). At ever
 evaluation: training seconds (evaluation excluded), val PSNR/SSIM, and the mean rendered
 opacity on the val pixels whose ground-truth alpha is 0 (empty space) and 255 (the object).
 
-fern (504x378, factor 8, NDC): preset `cpu` without and with the distortion loss
-(`distortion_weight`). At every evaluation: test PSNR/SSIM, the mean distortion of the
+fern (504x378, factor 8, NDC): preset `cpu` (or `fast`) without and with the distortion
+loss (`distortion_weight`). At every evaluation: test PSNR/SSIM, the mean distortion of the
 fine weights per ray and the share of each ray's weight lying more than 0.05 (in NDC
-depth) from the ray's weighted median depth (semi-transparent floaters), on every 4th pixel.
+depth) from the ray's weighted median depth (semi-transparent floaters), on every 4th pixel;
+at the end, the seconds to render one test view (after a warm-up render) and, for the
+occupancy grid, the share of its cells that are occupied.
 
 Usage:
   python experiments/bench_empty_space.py lego [--steps 3000] [--eval-every 1000]
       [--preset cpu] [--out runs/bench_empty_space]
-  python experiments/bench_empty_space.py fern [--steps 1000] [--weight 0.01]
+  python experiments/bench_empty_space.py fern [--steps 1000] [--weight 0.01] [--preset fast]
 
 Writes RUN/<variant>/ for each variant, OUT/<scene>_bench.json and OUT/<scene>_opacity.png
 (rows: variants; columns: render, opacity, depth of the first two val/test views).
@@ -33,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import msnerf_jax
-from msnerf_jax import files, regularizers, render as render_lib, video
+from msnerf_jax import files, occupancy, regularizers, render as render_lib, video
 from msnerf_jax.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
@@ -41,10 +43,33 @@ from msnerf_jax.evaluate import evaluate_nerf
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.train import nerf
 from msnerf_jax.views import render_view
+from msnerf_jax.volume_rendering import ray_starts, segment_cumsum
+
+
+@functools.partial(jax.jit, static_argnums=(0,))
+def _weight_stats_packed(config, params, rays):
+  """The same figures for the occupancy-grid sampler's packed samples (every kept step)."""
+  n = rays["origins"].shape[0]
+  out = render_lib.render_rays_grid(NerfField(config), params, rays, config, {}, False,
+                                    budget=n * config.march_steps)
+  w, ray, interval = out["weights"], out["sample_ray"], out["sample_interval"]
+  dist = regularizers.distortion_packed(w, interval, ray, rays["near"], rays["far"])
+  safe = jnp.minimum(ray, n - 1)
+  span = (rays["far"] - rays["near"])[safe]
+  s = (interval.mean(-1) - rays["near"][safe]) / span
+  per_ray = lambda x: jax.ops.segment_sum(x, ray, n + 1, indices_are_sorted=True)[:n]
+  acc = jnp.maximum(per_ray(w), 1e-10)
+  cdf = segment_cumsum(w, ray_starts(ray)) / acc[safe]
+  median = jax.ops.segment_min(jnp.where(cdf >= 0.5, s, jnp.inf), ray, n + 1,
+                               indices_are_sorted=True)[:n]
+  spread = per_ray(w * (jnp.abs(s - median[safe]) > 0.05)) / acc
+  return dist, spread
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
 def _weight_stats(config, params, rays):
+  if config.sampler == "grid":
+    return _weight_stats_packed(config, params, rays)
   out = render_lib.render_rays(NerfField(config), params, rays, config)["fine"]
   w, z = out["weights"], out["z_vals"]
   dist = regularizers.distortion(w, z, rays["near"], rays["far"])
@@ -78,7 +103,7 @@ def main():
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("scene", choices=("lego", "fern"))
   parser.add_argument("--data", default=os.environ.get("MSNERF_DATA", "../shared/data"))
-  parser.add_argument("--preset", default="cpu", choices=("cpu", "paper"))
+  parser.add_argument("--preset", default="cpu", choices=("cpu", "paper", "fast"))
   parser.add_argument("--steps", type=int, default=None, help="lego 3000, fern 1000")
   parser.add_argument("--eval-every", type=int, default=None, help="lego 1000, fern 500")
   parser.add_argument("--weight", type=float, default=0.01, help="fern: distortion weight")
@@ -88,6 +113,9 @@ def main():
   parser.add_argument("--variants", nargs="+", default=None, metavar="NAME",
                       help="run only these variants (lego: white random; fern: plain "
                            "distortion_W)")
+  parser.add_argument("--keep-runs", action="store_true",
+                      help="resume (or just evaluate) the variants' runs left in OUT by an "
+                           "earlier call instead of training them again")
   parser.add_argument("--precrop-steps", type=int, default=None,
                       help="override the preset's centre-crop steps (for shorter runs)")
   args = parser.parse_args()
@@ -125,26 +153,43 @@ def main():
         + " ".join(f"{k:>18}" for k in extra))
   table, views = {}, scene.split(split)[:2]
   for name, config in variants.items():
+    config = nerf.resolve_config(config, scene)  # the scene's box, as training resolves it.
     run = os.path.join(args.out, f"{args.scene}_{args.preset}_{name}")
-    shutil.rmtree(run, ignore_errors=True)
+    if not args.keep_runs:
+      shutil.rmtree(run, ignore_errors=True)
     rows, clock = [], {"start": time.time(), "eval": 0.0}
 
-    def on_checkpoint(step, params, config=config, rows=rows, clock=clock, name=name):
+    def on_checkpoint(step, params, config=config, rows=rows, clock=clock, name=name,
+                      train_s=None):
       t = time.time()
       _, mean, _ = evaluate_nerf(eval_scene, params, config, split, progress=False)
       if not lego:
         mean["distortion"], mean["off_surface"] = weight_stats(scene, params, config,
                                                                scene.split(split))
       clock["eval"] += time.time() - t
-      train_s = time.time() - clock["start"] - clock["eval"]
+      if train_s is None:
+        train_s = time.time() - clock["start"] - clock["eval"]
       rows.append({"step": step, "train_seconds": round(train_s, 1), **mean})
       print(f"{name:<18} {step:6d} {train_s:8.1f} {mean['psnr']:7.2f} {mean['ssim']:7.4f} "
             + " ".join(f"{mean[k]:18.4f}" for k in extra), flush=True)
 
     nerf.train(scene, config, data_config, run, progress=False, callback=on_checkpoint)
-    table[name] = {"config": dataclasses.asdict(config), "rows": rows}
     params = msnerf_jax.load_run(run).params
+    if not rows:  # --keep-runs: trained before; evaluated once, its training time from history.
+      with open(os.path.join(run, "history.jsonl")) as f:
+        last = json.loads(f.read().splitlines()[-1])
+      on_checkpoint(last["step"], params, train_s=last["time"])
+    table[name] = {"config": dataclasses.asdict(config), "rows": rows}
     renders = [render_view(scene, params, config, int(i)) for i in views]
+    t = time.time()
+    render_view(scene, params, config, int(views[0]))
+    table[name]["render_seconds"] = round(time.time() - t, 2)
+    if config.sampler == "grid":
+      table[name]["occupied"] = float(np.mean(np.asarray(occupancy.occupied(
+          jnp.asarray(params["occupancy"]), config.grid_threshold))))
+    print(f"# {name}: one {split} view renders in {table[name]['render_seconds']} s"
+          + (f"; {table[name]['occupied']:.1%} of the grid occupied"
+             if "occupied" in table[name] else ""), flush=True)
     table[name]["figure"] = renders
   # Figure: per variant, render | opacity | depth of each view.
   lo = min(float(np.percentile(r["depth"][r["accumulation"] > 0.5], 1))

@@ -6,7 +6,8 @@ Usage:
       [--minutes 10 15] [--eval-every 250] [--out runs/bench_presets]
       [--set PRESET:key=value ...]   # NerfConfig overrides of one preset
 
-lego is nerf_synthetic/lego at 100x100 (--downscale 8), evaluated on its val views; fern is
+lego is nerf_synthetic/lego at 100x100 (--downscale 8), lego400 the same at 400x400
+(--downscale 2), both evaluated on their val views; fern is
 nerf_llff_data/fern at factor 8 (NDC), evaluated on its held-out views (every 8th). Each
 row: step, training seconds (evaluation excluded), PSNR, SSIM; each run ends with the time
 of one 100x100 render (mean of 3 after a warm-up) and the best PSNR within the budget.
@@ -30,7 +31,8 @@ from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
 from msnerf_jax.views import render_view
 
-SCENES = {"lego": ("nerf_synthetic/lego", 8, "val"), "fern": ("nerf_llff_data/fern", 8, "test")}
+SCENES = {"lego": ("nerf_synthetic/lego", 8, "val"), "lego400": ("nerf_synthetic/lego", 2, "val"),
+          "fern": ("nerf_llff_data/fern", 8, "test")}
 
 
 def parse_overrides(items, preset):

@@ -92,7 +92,7 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
   1.0 on LLFF and on captures; white backgrounds). `cpu`: a smaller network and fewer samples tuned for a
   2-core laptop, trained against random backgrounds on Blender scenes (no white fog).
   `fast`: the hash-grid trunk with the occupancy-grid sampler (instant-NGP's recipe, sized
-  for a CPU), random backgrounds on Blender scenes.
+  for a CPU), random backgrounds on Blender scenes, the distortion loss on the others.
   Overriding net_depth without skip_layer puts the skip connection after the middle layer,
   where both presets have it.
   """
@@ -120,6 +120,12 @@ def nerf_preset(name: str, scene_format: str, **overrides: Any) -> NerfConfig:
         march_steps=128,
         # Forward-facing scenes fill the view: their rays need more of their 128 steps.
         samples_per_ray=64 if llff else 24,
+        # Photos without alpha: the distortion loss against semi-transparent floaters, and
+        # rendering in 16 segments (early ray termination). Measured on fern (README, "Empty
+        # space"): 24.16 dB against 24.02 without it, 45% of the grid occupied against 85%,
+        # a test view rendered in 8.2 s (16 segments) against 19.7 s (2 segments, no loss).
+        distortion_weight=0.01 if llff else 0.0,
+        march_segments=16 if llff else 2,
         batch_rays=1024,
         lr_init=1e-2,
         lr_final=3e-4,
@@ -196,8 +202,6 @@ def check_nerf_config(config: NerfConfig) -> None:
       bad("grid_threshold", "must be >= 0")
     if config.raw_noise_std > 0:
       bad("raw_noise_std", "the occupancy-grid sampler adds no density noise (use 0)")
-    if config.distortion_weight > 0:
-      bad("distortion_weight", "not available with the occupancy-grid sampler (use 0)")
 
 
 @dataclasses.dataclass(frozen=True)

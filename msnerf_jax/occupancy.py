@@ -148,8 +148,9 @@ def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: 
       (rendering marches in segments and stops rays whose transmittance is spent).
   Returns:
     {"ray": [B] int32 ray of each slot (R for an empty slot), "t": [B] sample depths,
-    "delta": [B] step lengths in world units, "valid": [B] bool, "complete": [R] bool (all of
-    the ray's kept samples fit in the budget)}.
+    "delta": [B] step lengths in world units, "interval": [B, 2] the step each slot's sample
+    stands for, [start, end) in ray parameter t, "valid": [B] bool, "complete": [R] bool
+    (all of the ray's kept samples fit in the budget)}.
   """
   chex.assert_rank(rays["origins"], 2)
   n_rays = rays["origins"].shape[0]
@@ -161,8 +162,10 @@ def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: 
   safe_ray = jnp.minimum(ray, n_rays - 1)
   step = steps[flat % n_steps].astype(jnp.float32)
   norm = jnp.linalg.norm(rays["directions"], axis=-1)
+  lo = jnp.where(valid, t_start[safe_ray] + step * dt[safe_ray], 0.0)
   return {"ray": ray,
-          "t": jnp.where(valid, t_start[safe_ray] + (step + offset[safe_ray]) * dt[safe_ray], 0.0),
+          "t": jnp.where(valid, lo + offset[safe_ray] * dt[safe_ray], 0.0),
           "delta": jnp.where(valid, dt[safe_ray] * norm[safe_ray], 0.0),
+          "interval": jnp.stack([lo, jnp.where(valid, lo + dt[safe_ray], 0.0)], -1),
           "valid": valid,
           "complete": jnp.cumsum(jnp.sum(keep, -1)) <= budget}

@@ -229,8 +229,8 @@ def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
     volume_render_packed's outputs (rgb, depth, disparity, accumulation with a leading [M]
     when conditioned; weights [B]) and "complete" [R] bool: False for a ray whose samples
     did not all fit in the budget (render it again in a smaller batch; leave it out of a
-    loss); the slots' rays "sample_ray" [B] (R for an empty slot) and positions
-    "sample_points" [B, 3].
+    loss); the slots' rays "sample_ray" [B] (R for an empty slot), positions
+    "sample_points" [B, 3] and steps "sample_interval" [B, 2] (occupancy.march's interval).
   """
   n = rays["origins"].shape[0]
   grid = occupancy.occupied(params["occupancy"], config.grid_threshold)
@@ -253,7 +253,7 @@ def render_rays_grid(field, params, rays: Dict[str, jnp.ndarray], config,
     out = {"rgb": jnp.moveaxis(out["rgb"], 1, 0), "weights": out["weights"],
            **{k: jnp.broadcast_to(out[k], (m, n)) for k in ("depth", "disparity", "accumulation")}}
   return {**out, "complete": samples["complete"], "sample_ray": samples["ray"],
-          "sample_points": points}
+          "sample_points": points, "sample_interval": samples["interval"]}
 
 
 def render_rays_styles(field, params, rays: Dict[str, jnp.ndarray], styles: jnp.ndarray,

@@ -57,12 +57,17 @@ def volume_render(rgb: jnp.ndarray, sigma: jnp.ndarray, z_vals: jnp.ndarray,
           "weights": weights}
 
 
-def _segment_cumsum(values: jnp.ndarray, starts: jnp.ndarray) -> jnp.ndarray:
+def segment_cumsum(values: jnp.ndarray, starts: jnp.ndarray) -> jnp.ndarray:
   """Inclusive cumulative sum along axis 0 that restarts where starts [B] is True."""
   def combine(a, b):
     (fa, va), (fb, vb) = a, b
     return fa | fb, jnp.where(fb, vb, va + vb)
   return jax.lax.associative_scan(combine, (starts, values))[1]
+
+
+def ray_starts(ray: jnp.ndarray) -> jnp.ndarray:
+  """[B] bool: the slot is the first of its ray in a pack sorted by ray (occupancy.march)."""
+  return jnp.concatenate([jnp.ones((1,), bool), ray[1:] != ray[:-1]])
 
 
 def volume_render_packed(rgb: jnp.ndarray, sigma: jnp.ndarray, samples: Dict[str, jnp.ndarray],
@@ -88,8 +93,8 @@ def volume_render_packed(rgb: jnp.ndarray, sigma: jnp.ndarray, samples: Dict[str
   chex.assert_equal_shape_prefix([rgb, sigma, samples["t"]], 1)
   ray, valid = samples["ray"], samples["valid"]
   tau = jnp.where(valid, sigma * samples["delta"], 0.0)
-  starts = jnp.concatenate([jnp.ones((1,), bool), ray[1:] != ray[:-1]])
-  trans = jnp.exp(-(_segment_cumsum(tau, starts) - tau))
+  starts = ray_starts(ray)
+  trans = jnp.exp(-(segment_cumsum(tau, starts) - tau))
   weights = trans * (1.0 - jnp.exp(-tau))
   per_ray = lambda x: jax.ops.segment_sum(x, ray, n_rays + 1,
                                           indices_are_sorted=True)[:n_rays]

@@ -185,3 +185,14 @@ def test_bad_weights_and_alpha_exit_2(run_dir, trained, tmp_path, capsys):
   _one_line_error(capsys, _main(base + ["--weights", "1", "2"]), "--weights")
   _one_line_error(capsys, _main(base + ["--alpha", "1.5"]), "--alpha")
   assert not (tmp_path / "o").exists()
+
+
+def test_bad_shift_weight_and_init_from_exit_2_nothing_written(trained, run_dir, tmp_path, capsys):
+  base = ["adain", "train", "--content", str(trained / "content"), "--styles",
+          str(trained / "styles"), "--out", str(tmp_path / "tuned")] + TRAIN
+  _one_line_error(capsys, _main(base + ["--shift-weight", "-0.5"]), "--shift-weight -0.5")
+  _one_line_error(capsys, _main(base + ["--init-from", str(tmp_path / "nowhere")]), "nowhere",
+                  "no such run folder")
+  _one_line_error(capsys, _main(base + ["--init-from", run_dir, "--upsample", "bilinear"]),
+                  "run.json", "upsample")
+  assert not (tmp_path / "tuned").exists()

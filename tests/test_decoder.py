@@ -1,5 +1,6 @@
 """AdaIN decoder (shapes, reflect padding, upsampling) and decoder training (loop, resume, NaN)."""
 
+import dataclasses
 import os
 
 import jax
@@ -177,3 +178,111 @@ def test_reflect_conv_equals_valid_conv_of_padded_input():
                                      dimension_numbers=("NHWC", "HWIO", "NHWC")) + bias
   assert out.shape == (2, 6, 7, 5)
   np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- shift consistency
+
+
+def test_random_shifts_are_sub_cell_and_deterministic():
+  shifts = train_adain.random_shifts(np.random.default_rng([3, 7]), 500)
+  assert shifts.shape == (500, 2) and shifts.dtype == np.int32
+  assert shifts.min() == 1 and shifts.max() == train_adain.CELL - 1  # never 0, never a cell.
+  np.testing.assert_array_equal(shifts, train_adain.random_shifts(np.random.default_rng([3, 7]), 500))
+
+
+def test_window_is_the_moved_crop():
+  images = jnp.arange(2 * 10 * 12 * 3, dtype=jnp.float32).reshape(2, 10, 12, 3)
+  corners = jnp.array([[1, 3], [4, 0]], jnp.int32)
+  out = train_adain.window(images, corners, 5)
+  np.testing.assert_array_equal(out[0], images[0, 1:6, 3:8])
+  np.testing.assert_array_equal(out[1], images[1, 4:9, 0:5])
+
+
+def test_shift_loss_compares_the_moved_decode_with_the_same_window():
+  """shift_loss against its definition written out with numpy slices, for two shifts."""
+  from msnerf_jax import adain as adain_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  enc = vgg.load_vgg_params()
+  params = decoder.init_decoder(jax.random.PRNGKey(0))
+  rng = np.random.default_rng(2)
+  content = rng.random((2, 40, 40, 3)).astype(np.float32)
+  output = rng.random((2, 40, 40, 3)).astype(np.float32)
+  mean = jnp.asarray(rng.random((2, 512)), jnp.float32)
+  std = jnp.asarray(rng.random((2, 512)) + 0.5, jnp.float32)
+  shifts = np.array([[1, 7], [5, 2]], np.int32)
+  got = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
+  side, margin = 40 - train_adain.CELL, train_adain.SHIFT_MARGIN
+  expected = []
+  for b, (dy, dx) in enumerate(shifts):
+    moved = content[b:b + 1, dy:dy + side, dx:dx + side]
+    t = adain_lib.adain_from_stats(adain_lib.encode(enc, moved)["relu4_1"], mean[b:b + 1],
+                                   std[b:b + 1])
+    decoded = np.asarray(decoder.Decoder("nearest").apply(params, t))[0]
+    same = output[b, dy:dy + side, dx:dx + side]
+    inner = slice(margin, side - margin)
+    expected.append(np.mean((decoded[inner, inner] - same[inner, inner]) ** 2))
+  np.testing.assert_allclose(float(got), np.mean(expected), rtol=1e-4)
+
+
+def test_shift_weight_adds_the_loss_and_its_gradient_lowers_it():
+  """With only the shift term weighted, a few Adam steps on one batch lower it; with weight 0
+  the loss is the paper's (no "shift" entry, the same total)."""
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  enc = vgg.load_vgg_params()
+  params = decoder.init_decoder(jax.random.PRNGKey(0))
+  rng = np.random.default_rng(1)
+  content = rng.random((2, 32, 32, 3)).astype(np.float32)
+  style = (rng.random((2, 32, 32, 3)) ** 2).astype(np.float32)
+  shifts = np.array([[3, 4], [7, 1]], np.int32)
+  plain = dataclasses.replace(TINY, shift_weight=0.0)
+  total, metrics = train_adain.losses(params, enc, content, style, plain, shifts)
+  assert "shift" not in metrics
+  with_shift = dataclasses.replace(TINY, shift_weight=2.0)
+  total2, metrics2 = train_adain.losses(params, enc, content, style, with_shift, shifts)
+  np.testing.assert_allclose(float(total2), float(total) + 2.0 * float(metrics2["shift"]),
+                             rtol=1e-5)
+  only_shift = dataclasses.replace(TINY, content_weight=0.0, style_weight=0.0, shift_weight=1.0)
+  opt_state = train_adain.make_optimizer(only_shift).init(params)
+  step = train_adain.make_train_step(train_adain.step_config(only_shift))
+  values = []
+  for _ in range(6):
+    params, opt_state, m = step(params, opt_state, enc, content, style, shifts)
+    values.append(float(m["shift"]))
+  assert values[-1] < 0.7 * values[0], values
+
+
+def test_init_from_starts_from_that_decoder_and_checks_it(tmp_path, folders):
+  content, styles = folders
+  source = str(tmp_path / "source")
+  train_adain.train(TINY, [content], styles, source, progress=False, log=lambda *_: None)
+  trained = runs.load_run(source).params
+  tuned = dataclasses.replace(TINY, init_from=source, shift_weight=1.0)
+  start = train_adain.initial_decoder(tuned)
+  jax.tree_util.tree_map(np.testing.assert_array_equal, start, trained)
+  # A resumed run restores its own checkpoint: the init is only the structure.
+  fresh = train_adain.initial_decoder(tuned, resuming=True)
+  assert jax.tree_util.tree_structure(fresh) == jax.tree_util.tree_structure(trained)
+  # Another upsampling cannot start from it; nothing of the new run is written.
+  other = dataclasses.replace(tuned, upsample="bilinear")
+  run = str(tmp_path / "tuned")
+  with pytest.raises(UserError, match=r"source/run.json: decoder made with upsample 'nearest'"):
+    train_adain.train(other, [content], styles, run, progress=False, log=lambda *_: None)
+  assert not os.path.exists(run)
+  # Fine-tuning trains from there and records the shift loss.
+  result = train_adain.train(tuned, [content], styles, run, progress=False, log=lambda *_: None)
+  assert result.step == TINY.steps and np.isfinite(result.metrics["shift"])
+
+
+@pytest.mark.parametrize("weight, size, needle", [
+    (-1.0, 32, "--shift-weight -1.0"),
+    (float("nan"), 32, "--shift-weight nan"),
+    (1.0, 24, "--size 24: the shift loss needs crops of at least 32 pixels"),
+])
+def test_bad_shift_settings_are_refused_before_writing(tmp_path, folders, weight, size, needle):
+  content, styles = folders
+  run = str(tmp_path / "run")
+  config = dataclasses.replace(TINY, shift_weight=weight, size=size, resize=size + 4)
+  with pytest.raises(UserError) as info:
+    train_adain.train(config, [content], styles, run, progress=False, log=lambda *_: None)
+  assert needle in str(info.value)
+  assert not os.path.exists(run)

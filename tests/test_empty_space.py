@@ -12,11 +12,12 @@ from PIL import Image
 
 import msnerf_jax
 from msnerf_jax import config as config_lib
-from msnerf_jax import demo, evaluate, metrics, regularizers
+from msnerf_jax import demo, evaluate, metrics, occupancy, regularizers
 from msnerf_jax import render as render_lib
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.errors import UserError
+from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.train import nerf
 from test_cli_nerf import assert_one_line_error, msnerf
 from test_train_nerf import TINY, leaves
@@ -50,6 +51,86 @@ def test_distortion_prefers_one_surface_to_fog():
   assert float(low[0]) < 0.1 * float(high[0])
   grad = jax.grad(lambda w: regularizers.distortion(w, z, 0 * ones, ones).sum())(fog)
   assert np.all(np.isfinite(np.asarray(grad)))
+
+
+def _rays(n, near, far, seed=0):
+  rng = np.random.default_rng(seed)
+  origins = rng.uniform(-0.2, 0.2, (n, 3)) + np.array([0.0, 0.0, -3.0])
+  directions = np.array([0.0, 0.0, 1.0]) + rng.uniform(-0.1, 0.1, (n, 3))
+  return {"origins": jnp.asarray(origins, jnp.float32),
+          "directions": jnp.asarray(directions, jnp.float32),
+          "near": jnp.asarray(near, jnp.float32), "far": jnp.asarray(far, jnp.float32)}
+
+
+def test_packed_distortion_of_every_step_equals_the_dense_loss():
+  """With every cell occupied, march's steps tile each ray's [near, far] (inside the box),
+  and the packed loss equals `distortion` of the same intervals ray by ray."""
+  config = dataclasses.replace(config_lib.NerfConfig(), scene_box=10.0, march_steps=24)
+  n, steps = 5, config.march_steps
+  rays = _rays(n, np.linspace(0.5, 1.5, n), np.linspace(4.0, 6.0, n))
+  samples = occupancy.march(rays, jnp.ones((4, 4, 4), bool), config, n * steps + 7,
+                            u=jnp.full((n,), 0.3))
+  assert bool(jnp.all(samples["complete"])) and int(jnp.sum(samples["valid"])) == n * steps
+  weights = jnp.where(samples["valid"], jax.random.uniform(jax.random.PRNGKey(0),
+                                                           samples["valid"].shape) / steps, 0.0)
+  got = regularizers.distortion_packed(weights, samples["interval"], samples["ray"],
+                                       rays["near"], rays["far"])
+  lo = samples["interval"][: n * steps, 0].reshape(n, steps)  # each step's start: z_i.
+  want = regularizers.distortion(weights[: n * steps].reshape(n, steps), lo, rays["near"],
+                                 rays["far"])
+  np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-7)
+
+
+def test_packed_distortion_with_empty_cells_equals_the_double_sum():
+  """Steps in empty cells are missing from the pack: the loss is the double sum over the
+  steps that are there, each standing for its own interval (the gaps weigh nothing)."""
+  config = dataclasses.replace(config_lib.NerfConfig(), scene_box=1.0, march_steps=40,
+                               grid_resolution=8)
+  n = 6
+  rays = _rays(n, np.full(n, 2.0), np.full(n, 4.0), seed=1)
+  grid = np.zeros((8, 8, 8), bool)
+  grid[:, :, 1:3] = grid[:, :, 5:7] = True  # two slabs across the rays' path along z.
+  samples = jax.tree_util.tree_map(np.asarray, occupancy.march(rays, jnp.asarray(grid), config,
+                                                               n * 40))
+  rng = np.random.default_rng(2)
+  weights = np.where(samples["valid"], rng.random(samples["valid"].shape) / 10, 0.0)
+  got = np.asarray(regularizers.distortion_packed(
+      jnp.asarray(weights, jnp.float32), jnp.asarray(samples["interval"]),
+      jnp.asarray(samples["ray"]), rays["near"], rays["far"]))
+  for r in range(n):
+    mine = samples["ray"] == r
+    assert 2 <= mine.sum() < 40  # the ray crosses both slabs and skips the space between.
+    s = (samples["interval"][mine] - 2.0) / 2.0
+    m, width, w = s.mean(1), s[:, 1] - s[:, 0], weights[mine]
+    want = np.sum(w[:, None] * w[None] * np.abs(m[:, None] - m[None])) + np.sum(w ** 2 * width) / 3
+    np.testing.assert_allclose(got[r], want, rtol=1e-5)
+
+
+def test_distortion_trains_with_the_grid_sampler(tiny_blender):
+  """The fast preset accepts the distortion loss: it is in the step's stats, finite, and
+  training with it leaves a fixed batch's weights less spread than training without it."""
+  from test_fast_trunk import TINY_FAST  # pylint: disable=g-import-not-at-top
+  scene, _ = load_scene(DataConfig(path=tiny_blender))
+  base = dataclasses.replace(TINY_FAST, random_background=False)
+  batch = _batch(scene, jax.random.PRNGKey(5), base, None)
+
+  def spread(params):
+    out = render_lib.render_rays(NerfField(base), params, batch["rays"],
+                                 base, batch["random"], True)
+    return float(nerf.distortion_loss(out, batch["rays"], out["fine"]["complete"]))
+
+  final = {}
+  for weight in (0.0, 1.0):
+    config = dataclasses.replace(base, distortion_weight=weight)
+    config_lib.check_nerf_config(config)
+    state = nerf.init_state(config)
+    step = jax.jit(nerf.train_step, static_argnums=(2, 3))
+    for _ in range(20):
+      state, stats = step(state, batch, config, True)
+    assert ("distortion" in stats) == (weight > 0)
+    final[weight] = spread(state.params)
+  assert np.isfinite(final[1.0]) and final[1.0] > 0
+  assert final[1.0] < 0.7 * final[0.0], final
 
 
 def test_mask_opacity_splits_by_ground_truth_alpha():
@@ -152,6 +233,11 @@ def test_presets_record_the_background_choice():
   assert not config_lib.nerf_preset("cpu", "llff").random_background
   assert not config_lib.nerf_preset("paper", "blender").random_background  # reference
   assert config_lib.nerf_preset("paper", "blender", random_background=True).random_background
+  # The fast preset: random backgrounds with alpha, the distortion loss without.
+  fast_blender, fast_llff = (config_lib.nerf_preset("fast", f) for f in ("blender", "llff"))
+  assert fast_blender.random_background and fast_blender.distortion_weight == 0.0
+  assert not fast_llff.random_background and fast_llff.distortion_weight > 0
+  config_lib.check_nerf_config(fast_llff)
   # A run.json saved before the fields existed loads with them off (what it was trained with).
   saved = config_lib.to_dict(TINY)
   del saved["random_background"], saved["distortion_weight"]

@@ -97,13 +97,26 @@ def masked_mse(rgb, target, mask=None):
           / (3.0 * per_ray * jnp.maximum(jnp.sum(mask), 1)))
 
 
+def distortion_loss(out, rays, complete=None):
+  """Mean distortion loss (regularizers) of render_rays' outputs: summed over the levels
+  (coarse and fine), or with the occupancy-grid sampler of its packed samples over the rays
+  whose samples fit the budget."""
+  if complete is not None:
+    fine = out["fine"]
+    per_ray = regularizers.distortion_packed(fine["weights"], fine["sample_interval"],
+                                             fine["sample_ray"], rays["near"], rays["far"])
+    return jnp.sum(jnp.where(complete, per_ray, 0.0)) / jnp.maximum(jnp.sum(complete), 1)
+  return sum(jnp.mean(regularizers.distortion(level["weights"], level["z_vals"], rays["near"],
+                                              rays["far"])) for level in out.values())
+
+
 def loss_fn(params, batch, config: NerfConfig, white_background: bool):
   """MSE of the coarse and the fine renders against the target colours (NeRF eq. 6); with
   the occupancy-grid sampler, of its one level over the rays whose samples fit the budget.
 
   A batch with "background" [B, 3] is rendered over those colours (random backgrounds).
   With config.distortion_weight > 0, adds that weight times the mean distortion loss
-  (regularizers.distortion) of both levels' weights.
+  (distortion_loss).
   """
   out = render_lib.render_rays(NerfField(config), params, batch["rays"], config,
                                batch["random"], white_background, batch.get("background"))
@@ -115,10 +128,7 @@ def loss_fn(params, batch, config: NerfConfig, white_background: bool):
   if complete is not None:
     stats["complete"] = jnp.mean(complete.astype(jnp.float32))
   if config.distortion_weight > 0:
-    rays = batch["rays"]
-    stats["distortion"] = sum(
-        jnp.mean(regularizers.distortion(level["weights"], level["z_vals"], rays["near"],
-                                         rays["far"])) for level in out.values())
+    stats["distortion"] = distortion_loss(out, batch["rays"], complete)
     loss = loss + config.distortion_weight * stats["distortion"]
   return loss, {"loss": loss, **stats}
 
