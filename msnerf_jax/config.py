@@ -71,7 +71,8 @@ class NerfConfig:
   # the photo's alpha and its render is composited over the same colour, so only true
   # transparency reproduces every background (white fog no longer explains a white one).
   # Rendering and evaluation still composite over white. distortion_weight: weight of the
-  # mip-NeRF 360 distortion loss on both levels' weights (discourages floaters; any scene).
+  # mip-NeRF 360 distortion loss on both levels' weights, or on the occupancy grid's packed
+  # samples (discourages floaters; any scene).
   random_background: bool = False
   distortion_weight: float = 0.0
   # Bookkeeping.
