@@ -46,9 +46,8 @@ from msnerf_jax.views import render_view
 from msnerf_jax.volume_rendering import ray_starts, segment_cumsum
 
 
-@functools.partial(jax.jit, static_argnums=(0,))
 def _weight_stats_packed(config, params, rays):
-  """The same figures for the occupancy-grid sampler's packed samples (every kept step)."""
+  """_weight_stats for the occupancy-grid sampler's packed samples (every kept step)."""
   n = rays["origins"].shape[0]
   out = render_lib.render_rays_grid(NerfField(config), params, rays, config, {}, False,
                                     budget=n * config.march_steps)

@@ -97,14 +97,15 @@ def masked_mse(rgb, target, mask=None):
           / (3.0 * per_ray * jnp.maximum(jnp.sum(mask), 1)))
 
 
-def distortion_loss(out, rays, complete=None):
+def distortion_loss(out, rays):
   """Mean distortion loss (regularizers) of render_rays' outputs: summed over the levels
-  (coarse and fine), or with the occupancy-grid sampler of its packed samples over the rays
-  whose samples fit the budget."""
-  if complete is not None:
-    fine = out["fine"]
+  (coarse and fine), or with the occupancy-grid sampler (packed outputs) of its samples over
+  the rays whose samples fit the budget."""
+  fine = out["fine"]
+  if "sample_interval" in fine:
     per_ray = regularizers.distortion_packed(fine["weights"], fine["sample_interval"],
                                              fine["sample_ray"], rays["near"], rays["far"])
+    complete = fine["complete"]
     return jnp.sum(jnp.where(complete, per_ray, 0.0)) / jnp.maximum(jnp.sum(complete), 1)
   return sum(jnp.mean(regularizers.distortion(level["weights"], level["z_vals"], rays["near"],
                                               rays["far"])) for level in out.values())
@@ -128,7 +129,7 @@ def loss_fn(params, batch, config: NerfConfig, white_background: bool):
   if complete is not None:
     stats["complete"] = jnp.mean(complete.astype(jnp.float32))
   if config.distortion_weight > 0:
-    stats["distortion"] = distortion_loss(out, batch["rays"], complete)
+    stats["distortion"] = distortion_loss(out, batch["rays"])
     loss = loss + config.distortion_weight * stats["distortion"]
   return loss, {"loss": loss, **stats}
 
