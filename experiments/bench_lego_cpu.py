@@ -14,7 +14,6 @@ import json
 import os
 import platform
 import shutil
-import time
 
 import jax
 
@@ -22,16 +21,8 @@ from msnerf_jax import evaluate
 from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
-
-
-def parse_overrides(items):
-  fields = NerfConfig.__dataclass_fields__
-  out = {}
-  for item in items:
-    key, value = item.split("=", 1)
-    out[key] = type(fields[key].default)(value) if not isinstance(fields[key].default, bool) \
-        else value.lower() in ("1", "true", "yes")
-  return out
+from bench_presets import parse_overrides
+from timed_training import train_within
 
 
 def main():
@@ -47,33 +38,21 @@ def main():
 
   scene, data_config = load_scene(DataConfig(path=args.data, downscale=8))
   config = nerf_preset("cpu", "blender", checkpoint_every=args.eval_every,
-                       **parse_overrides(args.set))
+                       **parse_overrides(args.set, "cpu"))
   config = NerfConfig(**{**config.__dict__, "steps": 10**6})
   shutil.rmtree(args.out, ignore_errors=True)
   print(f"# lego 100x100, preset cpu {config}")
   print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"jax {jax.__version__} on {jax.devices()[0].platform}")
   print(f"{'step':>7} {'train_s':>8} {'val_psnr':>9} {'val_ssim':>9}")
-  rows = []
-  clock = {"start": time.time(), "eval": 0.0}
-
-  class Done(Exception):
-    pass
-
-  def on_checkpoint(step, params):
-    t = time.time()
-    _, mean, _ = evaluate.evaluate_nerf(scene, params, config, "val", progress=False)
-    clock["eval"] += time.time() - t
-    train_s = time.time() - clock["start"] - clock["eval"]
-    rows.append({"step": step, "train_seconds": round(train_s, 1), **mean})
-    print(f"{step:7d} {train_s:8.1f} {mean['psnr']:9.2f} {mean['ssim']:9.4f}", flush=True)
-    if train_s > args.minutes * 60:
-      raise Done()
-
-  try:
-    nerf.train(scene, config, data_config, args.out, progress=False, callback=on_checkpoint)
-  except Done:
-    pass
+  rows, _ = train_within(
+      args.minutes,
+      lambda callback: nerf.train(scene, config, data_config, args.out, progress=False,
+                                  callback=callback),
+      lambda step, params: evaluate.evaluate_nerf(scene, params, config, "val",
+                                                  progress=False)[1],
+      lambda r: print(f"{r['step']:7d} {r['train_seconds']:8.1f} {r['psnr']:9.2f} "
+                      f"{r['ssim']:9.4f}", flush=True))
   best = max(rows, key=lambda r: r["psnr"])
   within = [r for r in rows if r["train_seconds"] <= args.minutes * 60]
   print(f"# best val PSNR {best['psnr']:.2f} dB at step {best['step']} "

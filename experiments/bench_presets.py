@@ -30,6 +30,7 @@ from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
 from msnerf_jax.views import render_view
+from timed_training import train_within
 
 SCENES = {"lego": ("nerf_synthetic/lego", 8, "val"), "lego400": ("nerf_synthetic/lego", 2, "val"),
           "fern": ("nerf_llff_data/fern", 8, "test")}
@@ -48,10 +49,6 @@ def parse_overrides(items, preset):
   return out
 
 
-class Done(Exception):
-  pass
-
-
 def bench(scene_name, preset, minutes, args):
   folder, downscale, split = SCENES[scene_name]
   scene, data_config = load_scene(DataConfig(path=os.path.join(args.data, folder),
@@ -64,28 +61,19 @@ def bench(scene_name, preset, minutes, args):
   print(f"# {scene_name} {scene.height}x{scene.width}, preset {preset}: trunk {config.trunk}, "
         f"sampler {config.sampler}, {config.batch_rays} rays a step", flush=True)
   print(f"{'step':>7} {'train_s':>8} {'psnr':>7} {'ssim':>7}", flush=True)
-  rows, clock, last = [], {"start": time.time(), "eval": 0.0}, {}
-
-  def on_checkpoint(step, params):
-    t = time.time()
-    _, mean, _ = evaluate.evaluate_nerf(scene, params, config, split, progress=False)
-    clock["eval"] += time.time() - t
-    train_s = time.time() - clock["start"] - clock["eval"]
-    rows.append({"step": step, "train_seconds": round(train_s, 1), **mean})
-    last["params"] = params
-    print(f"{step:7d} {train_s:8.1f} {mean['psnr']:7.2f} {mean['ssim']:7.4f}", flush=True)
-    if train_s > minutes * 60:
-      raise Done()
-
-  try:
-    nerf.train(scene, config, data_config, run_dir, progress=False, callback=on_checkpoint)
-  except Done:
-    pass
+  rows, params = train_within(
+      minutes,
+      lambda callback: nerf.train(scene, config, data_config, run_dir, progress=False,
+                                  callback=callback),
+      lambda step, params: evaluate.evaluate_nerf(scene, params, config, split,
+                                                  progress=False)[1],
+      lambda r: print(f"{r['step']:7d} {r['train_seconds']:8.1f} {r['psnr']:7.2f} "
+                      f"{r['ssim']:7.4f}", flush=True))
   view = int(scene.split(split)[0])
-  render_view(scene, last["params"], config, view)  # compile
+  render_view(scene, params, config, view)  # compile
   t = time.time()
   for _ in range(3):
-    render_view(scene, last["params"], config, view)
+    render_view(scene, params, config, view)
   render_s = (time.time() - t) / 3
   within = [r["psnr"] for r in rows if r["train_seconds"] <= minutes * 60]
   best = max(within, default=float("nan"))

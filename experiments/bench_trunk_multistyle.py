@@ -18,12 +18,10 @@ PSNR no lower than the MLP trunk's of the same training time.
 """
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
 import shutil
-import time
 
 import jax
 import numpy as np
@@ -34,10 +32,7 @@ from msnerf_jax.data.images import write_image
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
 from msnerf_jax.views import render_styles
-
-
-class Done(Exception):
-  pass
+from timed_training import train_within
 
 
 def bench(nerf_dir, stylized, minutes, args):
@@ -54,30 +49,23 @@ def bench(nerf_dir, stylized, minutes, args):
         f"{config.batch_rays} rays a step", flush=True)
   print(f"{'step':>7} {'train_s':>8} {'psnr':>7} {'ssim':>7}  " +
         " ".join(f"{s[:12]:>12}" for s in stylized.names), flush=True)
-  rows, clock, last = [], {"start": time.time(), "eval": 0.0}, {}
 
-  def on_checkpoint(step, params):
-    t = time.time()
-    _, means = evaluate.evaluate_multistyle(scene, stylized, params,
-                                            dataclasses.replace(config, nerf=nerf_run.config),
-                                            "val", progress=False)
-    clock["eval"] += time.time() - t
-    last["params"] = params
-    train_s = time.time() - clock["start"] - clock["eval"]
-    rows.append({"step": step, "train_seconds": round(train_s, 1), **means["mean"],
-                 "per_style": {s: means[s]["psnr"] for s in stylized.names}})
-    print(f"{step:7d} {train_s:8.1f} {means['mean']['psnr']:7.2f} {means['mean']['ssim']:7.4f}  "
-          + " ".join(f"{means[s]['psnr']:12.2f}" for s in stylized.names), flush=True)
-    if train_s > minutes * 60:
-      raise Done()
+  def figures(step, params):
+    means = evaluate.evaluate_multistyle(scene, stylized, params, config, "val",
+                                         progress=False)[1]
+    return {**means["mean"], "per_style": {s: means[s]["psnr"] for s in stylized.names}}
 
-  try:
-    multistyle.train(config, nerf_dir, stylized, run_dir, progress=False, callback=on_checkpoint)
-  except Done:
-    pass
+  rows, params = train_within(
+      minutes,
+      lambda callback: multistyle.train(config, nerf_dir, stylized, run_dir, progress=False,
+                                        callback=callback),
+      figures,
+      lambda r: print(f"{r['step']:7d} {r['train_seconds']:8.1f} {r['psnr']:7.2f} "
+                      f"{r['ssim']:7.4f}  " + " ".join(f"{r['per_style'][s]:12.2f}"
+                                                       for s in stylized.names), flush=True))
   views = scene.split("val")[:2]
-  frames = [render_styles(scene, last["params"], dataclasses.replace(config, nerf=nerf_run.config),
-                          int(v), stylized.vectors)["rgb"] for v in views]  # [K, H, W, 3] each
+  frames = [render_styles(scene, params, config, int(v), stylized.vectors)["rgb"]
+            for v in views]  # [K, H, W, 3] each
   within = [r for r in rows if r["train_seconds"] <= minutes * 60] or rows[:1]
   best = max(within, key=lambda r: r["psnr"])
   last = rows[-1]
