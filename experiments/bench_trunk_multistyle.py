@@ -13,8 +13,9 @@ in every style (`evaluate.evaluate_multistyle`, time not counted); training stop
 evaluation past `--minutes`. Each row: step, training seconds, mean PSNR and SSIM over the
 styles, PSNR per style. The table at the end gives each trunk's best mean PSNR within the budget
 and the mean training step time. Writes OUT/bench.json and OUT/frames.png (rows: the stylized
-target, then each run's heads at the end of their budget; per style, the first two val views). Target (issue 16): the fast trunk's mean
-PSNR no lower than the MLP trunk's of the same training time.
+target, then each run's heads at the end of their budget; per style, the first two val views).
+Target (issue 16): the fast trunk's mean PSNR no lower than the MLP trunk's of the same
+training time.
 """
 
 import argparse
