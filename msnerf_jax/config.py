@@ -305,6 +305,9 @@ def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Op
   return None
 
 
+SHIFT_SOURCES = ("photo", "features")  # AdainConfig.shift_source.
+
+
 @dataclasses.dataclass(frozen=True)
 class AdainConfig:
   """AdaIN decoder training (defaults = reference code, except style_weight = the paper's 10)."""
@@ -328,6 +331,11 @@ class AdainConfig:
   # and the same window of the unmoved crop's decode, away from the crop's borders. Strokes then
   # follow the content instead of the encoder's cell grid (experiments/decoder_shift.py).
   shift_weight: float = 0.0
+  # What the moved crop's relu4_1 map is: "photo", the moved crop encoded again (the whole
+  # encode-decode chain, per-frame AdaIN's case: the encoder's aliasing included); "features",
+  # the crop's own map resampled bilinearly by the sub-cell shift (a feature field's case: its
+  # render moves smoothly with the camera), so only the decoder is asked to follow it.
+  shift_source: str = "photo"
   init_from: str = ""  # an AdaIN run folder whose decoder starts this run (fine-tuning).
 
 

@@ -191,6 +191,7 @@ def test_bad_shift_weight_and_init_from_exit_2_nothing_written(trained, run_dir,
   base = ["adain", "train", "--content", str(trained / "content"), "--styles",
           str(trained / "styles"), "--out", str(tmp_path / "tuned")] + TRAIN
   _one_line_error(capsys, _main(base + ["--shift-weight", "-0.5"]), "--shift-weight -0.5")
+  _one_line_error(capsys, _main(base + ["--shift-source", "pixels"]), "--shift-source", "pixels")
   _one_line_error(capsys, _main(base + ["--init-from", str(tmp_path / "nowhere")]), "nowhere",
                   "no such run folder")
   _one_line_error(capsys, _main(base + ["--init-from", run_dir, "--upsample", "bilinear"]),

@@ -224,6 +224,51 @@ def test_shift_loss_compares_the_moved_decode_with_the_same_window():
   np.testing.assert_allclose(float(got), np.mean(expected), rtol=1e-4)
 
 
+def test_resample_cells_is_bilinear_between_neighbouring_cells():
+  """Written out per cell with numpy; a shift of 0 keeps the map, a whole cell moves it by one."""
+  rng = np.random.default_rng(4)
+  feats = rng.random((2, 4, 5, 3)).astype(np.float32)
+  shifts = np.array([[3, 6], [0, 8]], np.int32)
+  got = np.asarray(train_adain.resample_cells(jnp.asarray(feats), jnp.asarray(shifts)))
+  assert got.shape == (2, 3, 4, 3)
+  for b, (dy, dx) in enumerate(shifts / train_adain.CELL):
+    for i in range(3):
+      for j in range(4):
+        want = ((1 - dy) * (1 - dx) * feats[b, i, j] + (1 - dy) * dx * feats[b, i, j + 1]
+                + dy * (1 - dx) * feats[b, i + 1, j] + dy * dx * feats[b, i + 1, j + 1])
+        np.testing.assert_allclose(got[b, i, j], want, rtol=1e-6, atol=1e-7)
+  np.testing.assert_array_equal(got[1], feats[1, :-1, 1:])  # (0, CELL): one cell to the left.
+
+
+def test_shift_loss_of_features_decodes_the_resampled_map():
+  """source="features": the crop's own map resampled by the shift is decoded and compared with
+  the same window; the encoder is not run again (the content pixels do not matter)."""
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  enc = vgg.load_vgg_params()
+  params = decoder.init_decoder(jax.random.PRNGKey(0))
+  rng = np.random.default_rng(3)
+  content = rng.random((2, 40, 40, 3)).astype(np.float32)
+  output = rng.random((2, 40, 40, 3)).astype(np.float32)
+  target = rng.normal(size=(2, 5, 5, 512)).astype(np.float32)
+  mean, std = jnp.zeros((2, 512)), jnp.ones((2, 512))
+  shifts = np.array([[2, 5], [7, 1]], np.int32)
+  got = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest",
+                               "features", target)
+  again = train_adain.shift_loss(params, enc, np.zeros_like(content), output, mean, std, shifts,
+                                 "nearest", "features", target)
+  np.testing.assert_allclose(float(got), float(again), rtol=1e-6)
+  side, margin = 40 - train_adain.CELL, train_adain.SHIFT_MARGIN
+  inner = slice(margin, side - margin)
+  moved = train_adain.resample_cells(jnp.asarray(target), jnp.asarray(shifts))
+  decoded = np.asarray(decoder.Decoder("nearest").apply(params, moved))
+  expected = [np.mean((decoded[b][inner, inner]
+                       - output[b, dy:dy + side, dx:dx + side][inner, inner]) ** 2)
+              for b, (dy, dx) in enumerate(shifts)]
+  np.testing.assert_allclose(float(got), np.mean(expected), rtol=1e-4)
+  photo = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
+  assert abs(float(photo) - float(got)) > 1e-3 * float(got)  # the two sources differ.
+
+
 def test_shift_weight_adds_the_loss_and_its_gradient_lowers_it():
   """With only the shift term weighted, a few Adam steps on one batch lower it; with weight 0
   the loss is the paper's (no "shift" entry, the same total)."""
@@ -241,14 +286,17 @@ def test_shift_weight_adds_the_loss_and_its_gradient_lowers_it():
   total2, metrics2 = train_adain.losses(params, enc, content, style, with_shift, shifts)
   np.testing.assert_allclose(float(total2), float(total) + 2.0 * float(metrics2["shift"]),
                              rtol=1e-5)
-  only_shift = dataclasses.replace(TINY, content_weight=0.0, style_weight=0.0, shift_weight=1.0)
-  opt_state = train_adain.make_optimizer(only_shift).init(params)
-  step = train_adain.make_train_step(train_adain.step_config(only_shift))
-  values = []
-  for _ in range(6):
-    params, opt_state, m = step(params, opt_state, enc, content, style, shifts)
-    values.append(float(m["shift"]))
-  assert values[-1] < 0.7 * values[0], values
+  for source in config_lib.SHIFT_SOURCES:
+    only_shift = dataclasses.replace(TINY, content_weight=0.0, style_weight=0.0, shift_weight=1.0,
+                                     shift_source=source)
+    tuned = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its inputs.
+    opt_state = train_adain.make_optimizer(only_shift).init(tuned)
+    step = train_adain.make_train_step(train_adain.step_config(only_shift))
+    values = []
+    for _ in range(6):
+      tuned, opt_state, m = step(tuned, opt_state, enc, content, style, shifts)
+      values.append(float(m["shift"]))
+    assert values[-1] < 0.7 * values[0], (source, values)
 
 
 def test_init_from_starts_from_that_decoder_and_checks_it(tmp_path, folders):

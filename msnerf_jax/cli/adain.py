@@ -48,6 +48,11 @@ def register(commands, formatter):
                      help="weight of the shift-consistency loss: a crop moved by 1-7 pixels "
                           "(less than a relu4_1 cell) must decode to the moved decode, so strokes "
                           "follow the content, not the encoder's 8-pixel grid (0 = off, the paper)")
+  train.add_argument("--shift-source", default=_DEFAULTS.shift_source,
+                     metavar="{" + ",".join(config_lib.SHIFT_SOURCES) + "}",
+                     help="the moved crop's relu4_1 map in the shift loss: 'photo', the moved "
+                          "pixels encoded again (per-frame AdaIN's case); 'features', the crop's "
+                          "map resampled bilinearly by the shift (a feature field's case)")
   train.add_argument("--init-from", default=_DEFAULTS.init_from, metavar="ADAIN_RUN",
                      help="start from this AdaIN run's decoder instead of a random init "
                           "(fine-tuning, e.g. with --shift-weight)")
@@ -98,6 +103,7 @@ def _train(args):
       size=args.size, resize=args.resize, batch=args.batch, steps=args.steps, lr=args.lr,
       lr_decay=args.lr_decay, content_weight=args.content_weight, style_weight=args.style_weight,
       upsample=args.upsample, shift_weight=args.shift_weight,
+      shift_source=args.shift_source,
       init_from=os.path.abspath(args.init_from) if args.init_from else "",
       holdout_every=args.holdout_every, seed=args.seed,
       sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),

@@ -160,25 +160,50 @@ def window(images: jnp.ndarray, corners: jnp.ndarray, side: int) -> jnp.ndarray:
   return jax.vmap(take)(images, corners)
 
 
+def resample_cells(features: jnp.ndarray, shifts: jnp.ndarray) -> jnp.ndarray:
+  """A relu4_1 map moved by a sub-cell shift, bilinear between neighbouring cells: what a
+  feature field's render gives when the camera moves the scene by (dy, dx) pixels.
+
+  Args:
+    features: [B, h, w, C]; shifts: [B, 2] int (dy, dx) pixels, each in [0, CELL].
+  Returns:
+    [B, h - 1, w - 1, C]: cell (i, j) is the map at (i + dy / CELL, j + dx / CELL).
+  """
+  a = (shifts[:, 0].astype(features.dtype) / CELL)[:, None, None, None]
+  b = (shifts[:, 1].astype(features.dtype) / CELL)[:, None, None, None]
+  rows = (1 - a) * features[:, :-1] + a * features[:, 1:]
+  return (1 - b) * rows[:, :, :-1] + b * rows[:, :, 1:]
+
+
 def shift_loss(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
                output: jnp.ndarray, style_mean: jnp.ndarray, style_std: jnp.ndarray,
-               shifts: jnp.ndarray, upsample: str) -> jnp.ndarray:
+               shifts: jnp.ndarray, upsample: str, source: str = "photo",
+               target: Optional[jnp.ndarray] = None) -> jnp.ndarray:
   """Shift consistency of the stylization: decoding a moved crop moves the strokes with it.
 
   The window of side S - CELL at (dy, dx) of each content crop is stylized on its own (its
   relu4_1 cells sit dy, dx pixels off the crop's) and compared with the same window of the
-  crop's stylization `output`, SHIFT_MARGIN pixels from the window's borders left out.
+  crop's stylization `output`, SHIFT_MARGIN pixels from the window's borders left out. With
+  source "photo" the window's map is the encoder's of the moved pixels; with "features" it is
+  the crop's AdaIN map `target` resampled by the shift (`resample_cells`).
 
   Args:
     content, output: [B, S, S, 3]; style_mean, style_std: [B, 512] (relu4_1 statistics).
     shifts: [B, 2] int (dy, dx), each in [1, CELL).
+    source: "photo" or "features" (config.SHIFT_SOURCES).
+    target: [B, S / CELL, S / CELL, 512], the crop's AdaIN map; read with "features".
   Returns:
     [] mean squared pixel difference.
   """
   side = content.shape[1] - CELL
-  moved = adain_lib.encode(encoder_params, window(content, shifts, side))["relu4_1"]
-  target = jax.lax.stop_gradient(adain_lib.adain_from_stats(moved, style_mean, style_std))
-  moved_out = decoder_lib.Decoder(upsample).apply(decoder_params, target)
+  if source == "features":
+    chex.assert_shape(target, (content.shape[0], content.shape[1] // CELL,
+                               content.shape[2] // CELL, None))
+    moved_target = jax.lax.stop_gradient(resample_cells(target, shifts))
+  else:
+    moved = adain_lib.encode(encoder_params, window(content, shifts, side))["relu4_1"]
+    moved_target = jax.lax.stop_gradient(adain_lib.adain_from_stats(moved, style_mean, style_std))
+  moved_out = decoder_lib.Decoder(upsample).apply(decoder_params, moved_target)
   inner = slice(SHIFT_MARGIN, side - SHIFT_MARGIN)
   same = window(output, shifts, side)
   return jnp.mean(jnp.square(moved_out[:, inner, inner] - same[:, inner, inner]))
@@ -214,7 +239,7 @@ def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style
     chex.assert_shape(shifts, (content.shape[0], 2))
     mean, std = jax.lax.stop_gradient(target_stats["relu4_1"])
     metrics["shift"] = shift_loss(decoder_params, encoder_params, content, output, mean, std,
-                                  shifts, config.upsample)
+                                  shifts, config.upsample, config.shift_source, target)
     total = total + config.shift_weight * metrics["shift"]
   return total, {"loss": total, **metrics}
 
@@ -334,6 +359,9 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     raise UserError("--batch and --steps must be positive")
   if not 0.0 <= config.shift_weight < float("inf"):
     raise UserError(f"--shift-weight {config.shift_weight}: must be a number >= 0")
+  if config.shift_source not in config_lib.SHIFT_SOURCES:
+    raise UserError(f"--shift-source {config.shift_source}: choose from "
+                    f"{', '.join(config_lib.SHIFT_SOURCES)}")
   if config.shift_weight > 0 and config.size < CELL + 2 * SHIFT_MARGIN + CELL:
     raise UserError(f"--size {config.size}: the shift loss needs crops of at least "
                     f"{CELL + 2 * SHIFT_MARGIN + CELL} pixels")
