@@ -15,6 +15,9 @@ shifted stylization of the window (overlap only, 16-pixel margins dropped), for:
   per-frame:   stylize.stylize_image's AdaIN at the enlarged size (own statistics);
   grid-avg N:  the same, with the cell grid moved by N offsets ({0, 4}^2 for N = 4, the
                diagonal {0, (4, 4)} for N = 2), each decode moved back and the N averaged;
+  resampled:   the decoder alone: the unshifted window's AdaIN map resampled bilinearly by
+               s / 8 cells (train_adain.resample_cells, what a feature field's render does
+               when the camera moves) and decoded; the encoder's aliasing left out;
 and the AdaIN style distance (relu1_1..relu4_1) of each method's unshifted stylization to
 the style, against per-frame AdaIN's (what averaging costs). A feature field sampled on the
 camera's cell grid inherits exactly this: its features translate with the scene, the grid
@@ -39,7 +42,9 @@ from msnerf_jax import adain, metrics, stylize
 from msnerf_jax.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
+from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
+from msnerf_jax.train.adain import resample_cells
 
 MARGIN = 16  # enlarged pixels dropped at every border (the decoder's zero/reflect padding).
 GRIDS = {"per-frame": [(0, 0)], "grid-avg 2": [(0, 0), (4, 4)],
@@ -55,6 +60,18 @@ def make_stylizer(decoder, encoder):
     return _decode_jit(decoder.params, encoder, window[None], s_mean, s_std, 1.0,
                        upsample=decoder.config.upsample)[0]
   return stylize_window
+
+
+def make_resampled(decoder, encoder):
+  @jax.jit
+  def resampled(window, s_mean, s_std, shift):
+    """[H + 8, W + 8, 3] window, shift (dy, dx) in [0, 8] -> [H, W, 3]: the window's AdaIN map
+    moved by the shift (bilinear between cells), decoded."""
+    t = adain.adain_from_stats(adain.encode(encoder, window[None])["relu4_1"], s_mean, s_std)
+    moved = resample_cells(t, jnp.asarray(shift, jnp.int32)[None])
+    return jnp.clip(decoder_lib.Decoder(decoder.config.upsample).apply(decoder.params, moved),
+                    0.0, 1.0)[0]
+  return resampled
 
 
 def stylized(stylize_window, big, top, left, size, offsets, style_stats):
@@ -77,20 +94,27 @@ def main(argv=None):
   p.add_argument("--views", type=int, default=4)
   p.add_argument("--styles", nargs="+", required=True)
   p.add_argument("--shifts", type=int, nargs="+", default=[2, 4, 6, 8])
+  p.add_argument("--grids", nargs="+", choices=list(GRIDS), default=list(GRIDS),
+                 help="which cell-grid methods to measure (the resampled map always is)")
   p.add_argument("--json", default=None)
   args = p.parse_args(argv)
+  grids = {m: GRIDS[m] for m in args.grids if m in GRIDS}
+  if "per-frame" not in grids:
+    grids = {"per-frame": GRIDS["per-frame"], **grids}  # the style distance's reference.
   t0 = time.time()
   scene, _ = load_scene(DataConfig(path=args.data, downscale=args.downscale))
   train = scene.split("train")
   views = [scene.images[i] for i in train[np.linspace(0, len(train) - 1, args.views).astype(int)]]
   decoder, encoder = stylize.load_decoder(args.decoder), vgg.load_vgg_params()
   stylize_window = make_stylizer(decoder, encoder)
+  resampled = make_resampled(decoder, encoder)
+  methods = list(grids) + ["resampled"]
   pad = MARGIN + 16
   rows = []
   for style_path in args.styles:
     style = images_lib.read_image(style_path, max_side=1024)
-    rmse = {m: {s: [] for s in args.shifts} for m in GRIDS}
-    dist = {m: [] for m in GRIDS}
+    rmse = {m: {s: [] for s in args.shifts} for m in methods}
+    dist = {m: [] for m in grids}
     for view in views:
       h, w = view.shape[:2]
       big = images_lib.resize(view, h * args.scale, w * args.scale)
@@ -99,22 +123,29 @@ def main(argv=None):
       crop = images_lib.cover_crop(style, size, size)
       s_mean, s_std = adain.channel_stats(adain.encode(encoder, jnp.asarray(crop[None]))["relu4_1"])
       base = {m: stylized(stylize_window, big, pad, pad, size, o, (s_mean, s_std))
-              for m, o in GRIDS.items()}
-      for m in GRIDS:
+              for m, o in grids.items()}
+      for m in grids:
         dist[m].append(float(metrics.style_distance(
             encoder, jnp.asarray(base[m][None]), jnp.asarray(crop[None]))["adain"][0]))
+      window = jnp.asarray(big[pad:pad + size + 8, pad:pad + size + 8])
+      whole = np.asarray(resampled(window, s_mean, s_std, (0, 0)))
       for s in args.shifts:
         for dy, dx in ((s, 0), (0, s), (s, s)):
-          for m, o in GRIDS.items():
+          for m, o in grids.items():
             moved = stylized(stylize_window, big, pad + dy, pad + dx, size, o, (s_mean, s_std))
             a = base[m][dy + MARGIN:size - MARGIN, dx + MARGIN:size - MARGIN]
             b = moved[MARGIN:size - MARGIN - dy, MARGIN:size - MARGIN - dx]
             rmse[m][s].append(float(np.sqrt(np.mean(np.square(a - b)))))
+          moved = np.asarray(resampled(window, s_mean, s_std, (dy, dx)))
+          a = whole[dy + MARGIN:size - MARGIN, dx + MARGIN:size - MARGIN]
+          b = moved[MARGIN:size - MARGIN - dy, MARGIN:size - MARGIN - dx]
+          rmse["resampled"][s].append(float(np.sqrt(np.mean(np.square(a - b)))))
     name = os.path.splitext(os.path.basename(style_path))[0]
     row = {"style": name}
-    for m in GRIDS:
+    for m in grids:
       row[m] = {"rmse": {s: float(np.mean(rmse[m][s])) for s in args.shifts},
                 "style_distance": float(np.mean(dist[m]))}
+    row["resampled"] = {"rmse": {s: float(np.mean(rmse["resampled"][s])) for s in args.shifts}}
     rows.append(row)
     print(name, json.dumps(row), flush=True)
   seconds = time.time() - t0
@@ -124,10 +155,13 @@ def main(argv=None):
         + " | style distance / per-frame |")
   print("|---|---|" + "---|" * (len(args.shifts) + 1))
   for row in rows:
-    for m in GRIDS:
+    for m in grids:
       r = row[m]
       print(f"| {row['style']} | {m} | " + " | ".join(f"{r['rmse'][s]:.4f}" for s in args.shifts)
             + f" | {r['style_distance'] / row['per-frame']['style_distance']:.2f} |")
+    r = row["resampled"]["rmse"]
+    print(f"| {row['style']} | resampled map | " + " | ".join(f"{r[s]:.4f}" for s in args.shifts)
+          + " | - |")
   hardware = f"{os.cpu_count()} cores {platform.processor() or platform.machine()}, " \
              f"jax {jax.__version__} {jax.default_backend()}"
   print(f"\n{seconds:.0f} s on {hardware}")
