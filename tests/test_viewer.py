@@ -468,7 +468,7 @@ def test_cli_serves_on_loopback_and_ctrl_c_stops_cleanly(world, request, tmp_pat
       probe.camera(view.wxyz, view.position, view.fov, 200, 200)
       assert probe.next_frame(0).ndim == 3
       server.send_signal(signal.SIGINT)  # with the page still open
-      out, _ = server.communicate(timeout=30)
+      out, _ = server.communicate(timeout=120)  # a loaded 2-core CI box took over 30 s
       probe.wait_for(lambda: probe.closed, 10, "disconnect")
     finally:
       probe.close()
