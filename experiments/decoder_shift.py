@@ -74,6 +74,13 @@ def make_resampled(decoder, encoder):
   return resampled
 
 
+def shift_rmse(unmoved, moved, dy, dx, size):
+  """RMSE between `unmoved` moved by (dy, dx) and `moved`, over the overlap, MARGIN dropped."""
+  a = unmoved[dy + MARGIN:size - MARGIN, dx + MARGIN:size - MARGIN]
+  b = moved[MARGIN:size - MARGIN - dy, MARGIN:size - MARGIN - dx]
+  return float(np.sqrt(np.mean(np.square(a - b))))
+
+
 def stylized(stylize_window, big, top, left, size, offsets, style_stats):
   """The method's stylization of big[top:top + size, left:left + size]: for each offset o
   the window whose cell grid starts o earlier, decoded and moved back by o; the average."""
@@ -98,7 +105,7 @@ def main(argv=None):
                  help="which cell-grid methods to measure (the resampled map always is)")
   p.add_argument("--json", default=None)
   args = p.parse_args(argv)
-  grids = {m: GRIDS[m] for m in args.grids if m in GRIDS}
+  grids = {m: GRIDS[m] for m in args.grids}
   if "per-frame" not in grids:
     grids = {"per-frame": GRIDS["per-frame"], **grids}  # the style distance's reference.
   t0 = time.time()
@@ -133,13 +140,9 @@ def main(argv=None):
         for dy, dx in ((s, 0), (0, s), (s, s)):
           for m, o in grids.items():
             moved = stylized(stylize_window, big, pad + dy, pad + dx, size, o, (s_mean, s_std))
-            a = base[m][dy + MARGIN:size - MARGIN, dx + MARGIN:size - MARGIN]
-            b = moved[MARGIN:size - MARGIN - dy, MARGIN:size - MARGIN - dx]
-            rmse[m][s].append(float(np.sqrt(np.mean(np.square(a - b)))))
+            rmse[m][s].append(shift_rmse(base[m], moved, dy, dx, size))
           moved = np.asarray(resampled(window, s_mean, s_std, (dy, dx)))
-          a = whole[dy + MARGIN:size - MARGIN, dx + MARGIN:size - MARGIN]
-          b = moved[MARGIN:size - MARGIN - dy, MARGIN:size - MARGIN - dx]
-          rmse["resampled"][s].append(float(np.sqrt(np.mean(np.square(a - b)))))
+          rmse["resampled"][s].append(shift_rmse(whole, moved, dy, dx, size))
     name = os.path.splitext(os.path.basename(style_path))[0]
     row = {"style": name}
     for m in grids:
