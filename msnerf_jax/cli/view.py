@@ -2,6 +2,7 @@
 
 from msnerf_jax.cli.common import add_grids_argument
 from msnerf_jax.errors import UserError
+from msnerf_jax.train.stop import stop_requests
 
 
 def register(commands, formatter):
@@ -14,7 +15,7 @@ def register(commands, formatter):
                   "full one when it stops. Style menus, a blend slider, a strength slider and "
                   "an upload field for any style image; buttons to snap to the nearest "
                   "training view, save the view as PNG and add camera keyframes (a "
-                  "camera_path.json for `msnerf render --camera-path`). Ctrl-C stops it. "
+                  "camera_path.json for `msnerf render --camera-path`). Ctrl-C or SIGTERM stops it. "
                   "Needs the viewer extra: pip install \"msnerf-jax[viewer]\".",
       epilog="example: msnerf view --run runs/lego_pipeline/multistyle  (then open the printed "
              "address)")
@@ -50,8 +51,11 @@ def cmd_view(args):
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "
         f"{viewer.out_dir}. Ctrl-C stops.")
+  # Ctrl-C and SIGTERM stop it, also where the shell that started it in the background
+  # ignores SIGINT (the handlers are ours, not inherited).
   try:
-    server.serve_forever(viewer)
-  except KeyboardInterrupt:
+    with stop_requests() as requested:
+      server.serve_forever(viewer, should_stop=lambda: requested() is not None)
+  except KeyboardInterrupt:  # a second signal while stopping
     pass
   print("msnerf view: stopped")
