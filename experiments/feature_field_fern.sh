@@ -19,7 +19,8 @@ for f in "$D"/styles/*; do
     *) ln -sf "$(cd "$(dirname "$f")" && pwd)/$(basename "$f")" "$OUT/styles12/" ;;
   esac
 done
-DECODER_DATA=(--content "$D/content" "$D/nerf_synthetic/lego/train" "$D/nerf_llff_data/fern/images_8"
+DECODER_DATA=(--content "$D/content" "$D/nerf_synthetic/lego/train"
+  "$D/nerf_llff_data/fern/images_8"
   --styles "$OUT/styles12" --size 96 --resize 192 --batch 4 --style-weight 10 --holdout-every 3
   --sample-every 250 --checkpoint-every 250)
 S="$D/styles"

@@ -15,7 +15,8 @@ def register(commands, formatter):
                   "full one when it stops. Style menus, a blend slider, a strength slider and "
                   "an upload field for any style image; buttons to snap to the nearest "
                   "training view, save the view as PNG and add camera keyframes (a "
-                  "camera_path.json for `msnerf render --camera-path`). Ctrl-C or SIGTERM stops it. "
+                  "camera_path.json for `msnerf render --camera-path`). Ctrl-C or SIGTERM "
+                  "stops it. "
                   "Needs the viewer extra: pip install \"msnerf-jax[viewer]\".",
       epilog="example: msnerf view --run runs/lego_pipeline/multistyle  (then open the printed "
              "address)")
