@@ -6,7 +6,7 @@
 #   3. a feature run of 2000 steps on that NeRF;
 #   4. the decoder fine-tuned for shift consistency (500 steps, --shift-source features);
 #   5. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
-# About 2 hours on an idle 2-core CPU (README, "A VGG feature field"). Re-running resumes.
+# About 2 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
 # Usage: experiments/feature_field_fern.sh [OUT_DIR]   (default runs/fern_features)
 set -euo pipefail
 D="${MSNERF_DATA:-$(dirname "$0")/../../shared/data}"

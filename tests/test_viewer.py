@@ -450,8 +450,8 @@ def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, 
 
 def test_cli_serves_on_loopback_and_ctrl_c_stops_cleanly(world, request, tmp_path):
   from conftest import trainer_env  # pylint: disable=g-import-not-at-top
-  # Started as `cmd &` from a script starts it: with SIGINT ignored, inherited (a CI run
-  # launched in the background hung here until the viewer set its own handlers).
+  # Started with SIGINT ignored, as a script's `cmd &` starts it (a CI run launched in the
+  # background hung here until the viewer set its own handlers).
   server = subprocess.Popen(["sh", "-c", 'trap "" INT; exec "$0" "$@"', sys.executable, "-m",
                              "msnerf_jax", "view", "--run", world["run"],
                              "--port", "0", "--out", str(tmp_path / "saved")],
