@@ -3,10 +3,11 @@
 #   1. a `fast` fern NeRF (hash trunk + occupancy grid + distortion loss), 3000 steps;
 #   2. the AdaIN decoder of train_adain_decoder.sh on the 12 shared styles other than
 #      en_campo_gris, picasso_seated_nude_hr and scene_de_rue (held out of the decoder);
-#   3. a feature run of 2000 steps on that NeRF;
+#   3. a feature run of 2000 steps on that NeRF, with a 256-channel feature from 16 levels of
+#      16 hash features (the default 64 from 4 explains less of fern's relu4_1: README);
 #   4. the decoder fine-tuned for shift consistency (500 steps, --shift-source features);
 #   5. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
-# About 2 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
+# About 2.5 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
 # Usage: experiments/feature_field_fern.sh [OUT_DIR]   (default runs/fern_features)
 set -euo pipefail
 D="${MSNERF_DATA:-$(dirname "$0")/../../shared/data}"
@@ -19,20 +20,16 @@ for f in "$D"/styles/*; do
     *) ln -sf "$(cd "$(dirname "$f")" && pwd)/$(basename "$f")" "$OUT/styles12/" ;;
   esac
 done
-DECODER_DATA=(--content "$D/content" "$D/nerf_synthetic/lego/train"
-  "$D/nerf_llff_data/fern/images_8"
-  --styles "$OUT/styles12" --size 96 --resize 192 --batch 4 --style-weight 10 --holdout-every 3
-  --sample-every 250 --checkpoint-every 250)
 S="$D/styles"
 STYLES=("$S/asheville.jpg" "$S/brushstrokes.jpg" "$S/mondrian.jpg" "$S/woman_in_peasant_dress.jpg"
   "$S/scene_de_rue.jpg")
 start=$(date +%s)
 msnerf nerf train --data "$D/nerf_llff_data/fern" --downscale 8 --preset fast --steps 3000 \
   --out "$OUT/nerf"
-msnerf adain train "${DECODER_DATA[@]}" --out "$OUT/decoder" --steps 3000 --lr 3e-4
+"$HERE/train_adain_decoder.sh" "$OUT/decoder" "$OUT/styles12"
 msnerf features train --nerf "$OUT/nerf" --decoder "$OUT/decoder" --out "$OUT/features" \
-  --steps 2000 --stylize-scale 1
-msnerf adain train "${DECODER_DATA[@]}" --out "$OUT/decoder_shift" --init-from "$OUT/decoder" \
+  --steps 2000 --stylize-scale 1 --hash-features 16 --dim 256
+"$HERE/train_adain_decoder.sh" "$OUT/decoder_shift" "$OUT/styles12" --init-from "$OUT/decoder" \
   --steps 500 --lr 1e-4 --shift-weight 1000 --shift-source features
 for dec in decoder_shift decoder; do
   python "$HERE/feature_field.py" --features "$OUT/features" --decoder "$OUT/$dec" \
