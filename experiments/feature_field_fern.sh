@@ -6,6 +6,7 @@
 #   3. a feature run of 2000 steps on that NeRF, with a 256-channel feature from 16 levels of
 #      16 hash features (the default 64 from 4 explains less of fern's relu4_1: README);
 #   4. the decoder fine-tuned for shift consistency (500 steps, --shift-source features);
+#      train_adain_decoder.sh evaluates each decoder on its held-out images too;
 #   5. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
 # About 2.5 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
 # Usage: experiments/feature_field_fern.sh [OUT_DIR]   (default runs/fern_features)
