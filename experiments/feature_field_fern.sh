@@ -6,9 +6,11 @@
 #   3. a feature run of 2000 steps on that NeRF, with a 256-channel feature from 16 levels of
 #      16 hash features (the default 64 from 4 explains less of fern's relu4_1: README);
 #   4. the decoder fine-tuned for shift consistency (500 steps, --shift-source features);
+#   5. the decoder fine-tuned on the feature run's own renders (600 steps, half of each batch
+#      crops of its maps, --content-features) with the same shift loss;
 #      train_adain_decoder.sh evaluates each decoder on its held-out images too;
-#   5. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
-# About 2.5 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
+#   6. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
+# About 3 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
 # Usage: experiments/feature_field_fern.sh [OUT_DIR]   (default runs/fern_features)
 set -euo pipefail
 D="${MSNERF_DATA:-$(dirname "$0")/../../shared/data}"
@@ -32,7 +34,10 @@ msnerf features train --nerf "$OUT/nerf" --decoder "$OUT/decoder" --out "$OUT/fe
   --steps 2000 --stylize-scale 1 --hash-features 16 --dim 256
 "$HERE/train_adain_decoder.sh" "$OUT/decoder_shift" "$OUT/styles12" --init-from "$OUT/decoder" \
   --steps 500 --lr 1e-4 --shift-weight 1000 --shift-source features
-for dec in decoder_shift decoder; do
+"$HERE/train_adain_decoder.sh" "$OUT/decoder_field" "$OUT/styles12" --init-from "$OUT/decoder" \
+  --steps 600 --lr 1e-4 --content-features "$OUT/features" --shift-weight 1000 \
+  --shift-source features
+for dec in decoder_field decoder_shift decoder; do
   python "$HERE/feature_field.py" --features "$OUT/features" --decoder "$OUT/$dec" \
     --frames 15 --heldout 3 --styles "${STYLES[@]}" --out "$OUT/compare_$dec"
 done

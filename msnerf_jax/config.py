@@ -337,6 +337,12 @@ class AdainConfig:
   # render moves smoothly with the camera), so only the decoder is asked to follow it.
   shift_source: str = "photo"
   init_from: str = ""  # an AdaIN run folder whose decoder starts this run (fine-tuning).
+  # A feature run (`msnerf features train`) whose rendered relu4_1 maps of its training views
+  # are content too (beyond the AdaIN paper): crops of them, normalised by the run's content
+  # statistics as rendering normalises them, take feature_share of each batch. The decoder
+  # then learns to paint the field's own features, which are softer than one photo's.
+  content_features: str = ""
+  feature_share: float = 0.5
 
 
 @dataclasses.dataclass(frozen=True)

@@ -197,3 +197,10 @@ def test_bad_shift_weight_and_init_from_exit_2_nothing_written(trained, run_dir,
   _one_line_error(capsys, _main(base + ["--init-from", run_dir, "--upsample", "bilinear"]),
                   "run.json", "upsample")
   assert not (tmp_path / "tuned").exists()
+  # --content-features names a folder that is not a feature run; no content at all.
+  _one_line_error(capsys, _main(base + ["--content-features", run_dir]), "run.json",
+                  "not a 'features' run")
+  no_content = [a for a in base if a not in ("--content", str(trained / "content"))]
+  _one_line_error(capsys, _main(no_content), "--content: give at least one content folder")
+  assert not (tmp_path / "tuned").exists()
+

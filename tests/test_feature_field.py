@@ -376,6 +376,98 @@ def test_a_feature_setting_that_cannot_work_is_named(change, message):
     features.check_config(dataclasses.replace(TINY_FEATURES, **change), data_parallel(1))
 
 
+# ----------------------------------------------------------------------------- a decoder for the field
+
+
+def _styles_folder(folder):
+  os.makedirs(folder, exist_ok=True)
+  for i, colour in enumerate(((200, 40, 30), (30, 60, 200), (20, 160, 40))):
+    write_style(os.path.join(folder, f"s{i}.png"), colour, size=(48, 40))
+  return str(folder)
+
+
+def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_painted(
+    feature_world, tmp_path):
+  """`adain train --content-features`: the cached maps are the run's renders of its training
+  views normalised by its content statistics, so AdaIN of a crop towards a style is what
+  stylize_features hands the decoder at render time; photo and feature crops share a batch
+  (the loss is the mean of the two halves'); a resumed run ends bit-identical."""
+  from msnerf_jax import adain, views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.config import AdainConfig  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import adain as train_adain  # pylint: disable=g-import-not-at-top
+  styles = _styles_folder(tmp_path / "styles")
+  config = AdainConfig(size=32, resize=40, batch=2, steps=4, sample_every=2, checkpoint_every=2,
+                       lr=1e-4, init_from=feature_world["decoder"],
+                       content_features=feature_world["run"], feature_share=1.0)
+  quiet = dict(progress=False, log=lambda *_: None)
+  straight = str(tmp_path / "straight")
+  result = train_adain.train(config, [], styles, straight, **quiet)
+  assert result.step == 4 and np.isfinite(result.metrics["loss"])
+  assert os.path.exists(os.path.join(straight, "samples", "step_0000004.png"))
+  maps, stats = train_adain.prepare_feature_maps(straight, config)
+  run = msnerf_jax.load_run(feature_world["run"])
+  scene = feature_world["scene"]
+  assert maps.shape == (len(scene.split("train")), 4, 4, 512) and maps.dtype == np.float16
+  mean, std = runs.content_stats(run)
+  np.testing.assert_array_equal(stats, np.stack([mean, std]))
+  rendered = views.render_feature_map(scene, run.params, run.config, int(scene.split("train")[1]))
+  np.testing.assert_allclose(maps[1], (rendered["features"] - mean) / std, rtol=2e-3, atol=2e-3)
+  # The trainer's AdaIN of the normalised crops is the renderer's stylization of the map.
+  enc = vgg.load_vgg_params()
+  style = np.random.default_rng(3).random((1, 32, 32, 3)).astype(np.float32)
+  s_mean, s_std = adain.channel_stats(adain.encode(enc, jnp.asarray(style))["relu4_1"])
+  target = train_adain.adain_targets(enc, None, jnp.asarray(maps[1:2], jnp.float32), s_mean, s_std)
+  painted = stylize_features(jnp.asarray(maps[1], jnp.float32) * std + mean, jnp.ones((4, 4)),
+                             (mean, std), (s_mean[0], s_std[0]))
+  np.testing.assert_allclose(target[0], painted, rtol=1e-4, atol=1e-3)
+  # Photos and feature crops in one batch: each loss is the mean of the two halves'.
+  params = runs.load_run(straight).params
+  photo = np.random.default_rng(4).random((1, 32, 32, 3)).astype(np.float32)
+  styles2 = np.concatenate([style, style[:, ::-1]])
+  feats = jnp.asarray(maps[:1], jnp.float32)
+  _, both = train_adain.losses(params, enc, photo, styles2, config, None, feats)
+  _, first = train_adain.losses(params, enc, photo, styles2[:1], config)
+  _, second = train_adain.losses(params, enc, None, styles2[1:], config, None, feats)
+  for name in ("content", "style"):
+    np.testing.assert_allclose(both[name], (first[name] + second[name]) / 2, rtol=1e-4)
+  shifted = dataclasses.replace(config, shift_weight=1.0, shift_source="features")
+  shifts = np.array([[3, 4], [7, 1]], np.int32)
+  _, both = train_adain.losses(params, enc, photo, styles2, shifted, shifts, feats)
+  _, first = train_adain.losses(params, enc, photo, styles2[:1], shifted, shifts[:1])
+  _, second = train_adain.losses(params, enc, None, styles2[1:], shifted, shifts[1:], feats)
+  np.testing.assert_allclose(both["shift"], (first["shift"] + second["shift"]) / 2, rtol=1e-4)
+  # Two steps, then resumed to four: the same decoder bit for bit.
+  resumed = str(tmp_path / "resumed")
+  train_adain.train(dataclasses.replace(config, steps=2), [], styles, resumed, **quiet)
+  train_adain.train(config, [], styles, resumed, **quiet)
+  jax.tree_util.tree_map(np.testing.assert_array_equal, runs.load_run(resumed).params,
+                         runs.load_run(straight).params)
+
+
+@pytest.mark.parametrize("change, args, message", [
+    ({"content_features": "NERF"}, [], "a 'nerf' run, not a 'features' run"),
+    ({"feature_share": 0.5}, [], "--content: needed for the photo share of each batch"),
+    ({"feature_share": 0.0}, [], "--feature-share 0.0: must be in (0, 1]"),
+    ({"shift_weight": 1.0}, [], "--shift-source photo: feature crops have no pixels to move"),
+    ({"size": 48}, [], "its views are 4 relu4_1 cells on their shorter side, --size 48 needs 6"),
+    ({"content_features": ""}, [], "--content: give at least one content folder"),
+])
+def test_feature_content_that_cannot_work_is_refused_before_writing(feature_world, tmp_path,
+                                                                    change, args, message):
+  from msnerf_jax.config import AdainConfig  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import adain as train_adain  # pylint: disable=g-import-not-at-top
+  styles = _styles_folder(tmp_path / "styles")
+  change = {k: feature_world["nerf"] if v == "NERF" else v for k, v in change.items()}
+  config = dataclasses.replace(
+      AdainConfig(size=32, resize=40, batch=2, steps=2, content_features=feature_world["run"],
+                  feature_share=1.0), **change)
+  run = str(tmp_path / "run")
+  with pytest.raises(UserError, match=message.replace("(", r"\(").replace(")", r"\)")):
+    train_adain.train(config, args, styles, run, progress=False, log=lambda *_: None)
+  assert not os.path.exists(run)
+
+
 def test_bad_style_images_and_decoders_get_one_line(feature_world, tmp_path, capsys):
   from PIL import Image  # pylint: disable=g-import-not-at-top
   tiny = str(tmp_path / "tiny.png")

@@ -22,10 +22,20 @@ def register(commands, formatter):
       description="Trains the decoder with content + style_weight * style loss over relu1_1..relu4_1 "
                   "on random crops of content and style images. Re-running the same command resumes.",
       epilog="example: msnerf adain train --content photos/ --styles paintings/ --out runs/adain "
-             "--steps 20000")
-  train.add_argument("--content", nargs="+", required=True, metavar="DIR",
+             "--steps 20000\n"
+             "fine-tune for a feature run: msnerf adain train --init-from runs/adain --content-features "
+             "runs/ff --feature-share 1 --styles paintings/ --out runs/adain_ff --steps 500")
+  train.add_argument("--content", nargs="+", default=[], metavar="DIR",
                      help="folder(s) of content images (any size; JPEG/PNG/...); each folder is "
                           "sampled equally often")
+  train.add_argument("--content-features", default=_DEFAULTS.content_features, metavar="FEATURE_RUN",
+                     help="a feature run (`msnerf features train`): its rendered relu4_1 maps of "
+                          "the training views are content too, stylized as its views are painted, "
+                          "so the decoder learns to paint the field's own (softer) features; "
+                          "rendered once into RUN_DIR/content_features.npy")
+  train.add_argument("--feature-share", type=float, default=_DEFAULTS.feature_share,
+                     help="with --content-features: the share of each batch cropped from the "
+                          "feature maps (1: feature maps only, --content not needed)")
   train.add_argument("--styles", required=True, metavar="DIR", help="folder of style images")
   train.add_argument("--out", required=True, metavar="RUN_DIR",
                      help="run folder for run.json, checkpoints/ and samples/")
@@ -105,6 +115,8 @@ def _train(args):
       upsample=args.upsample, shift_weight=args.shift_weight,
       shift_source=args.shift_source,
       init_from=os.path.abspath(args.init_from) if args.init_from else "",
+      content_features=os.path.abspath(args.content_features) if args.content_features else "",
+      feature_share=args.feature_share,
       holdout_every=args.holdout_every, seed=args.seed,
       sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
       keep_checkpoints=max(1, args.keep_checkpoints))

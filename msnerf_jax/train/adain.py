@@ -32,6 +32,8 @@ from msnerf_jax.train import state as state_lib
 KIND = "adain"
 CELL = 8  # pixels of the encoder's input per relu4_1 cell (three 2x poolings).
 SHIFT_MARGIN = 8  # pixels at each border of a crop left out of the shift loss (border effects).
+FEATURE_MAPS = "content_features.npy"  # [N, h, w, 512] float16: a feature run's normalised maps.
+FEATURE_STATS = "content_features_stats.npy"  # [2, 512]: the (mean, std) they were normalised by.
 
 
 # ----------------------------------------------------------------------------- data
@@ -86,29 +88,97 @@ def random_shifts(rng: np.random.Generator, batch: int) -> np.ndarray:
   return rng.integers(1, CELL, size=(batch, 2)).astype(np.int32)
 
 
+def random_feature_crops(rng: np.random.Generator, maps: np.ndarray, batch: int,
+                         cells: int) -> np.ndarray:
+  """A batch of random cells x cells crops of feature maps [N, h, w, C] (one map uniformly
+  per item, no flips: a flipped view's VGG features are not its features flipped).
+  Returns: [batch, cells, cells, C] float32."""
+  out = np.empty((batch, cells, cells, maps.shape[-1]), np.float32)
+  for b in range(batch):
+    fmap = maps[rng.integers(len(maps))]
+    y, x = rng.integers(fmap.shape[0] - cells + 1), rng.integers(fmap.shape[1] - cells + 1)
+    out[b] = fmap[y:y + cells, x:x + cells]
+  return out
+
+
+def feature_batch(config: config_lib.AdainConfig) -> int:
+  """Crops of each batch taken from the feature maps (0 without config.content_features)."""
+  if not config.content_features:
+    return 0
+  return min(config.batch, max(1, round(config.batch * config.feature_share)))
+
+
+def render_content_features(feature_run_dir: str, progress: bool = False
+                            ) -> Tuple[np.ndarray, np.ndarray]:
+  """A feature run's relu4_1 maps of its scene's training views (views.render_feature_map,
+  the background feature filling each cell), normalised by the run's content statistics
+  (runs.content_stats, what rendering normalises by).
+
+  AdaIN towards a style's (mean, std) is then `n * std + mean`, exactly what
+  feature_style.stylize_features gives the decoder when a view of the run is painted.
+
+  Returns: (maps [N, h, w, 512] float16, statistics [2, 512] float32: mean, std)."""
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import views
+  from msnerf_jax.progress import progress_bar
+  run = runs_lib.load_run(feature_run_dir, "features")
+  scene, _ = runs_lib.scene_of(run)
+  mean, std = runs_lib.content_stats(run)
+  maps = [(views.render_feature_map(scene, run.params, run.config, int(i))["features"] - mean) / std
+          for i in progress_bar(scene.split("train"), desc="feature maps", disable=not progress,
+                                leave=False)]
+  return np.stack(maps).astype(np.float16), np.stack([mean, std]).astype(np.float32)
+
+
+def prepare_feature_maps(run_dir: str, config: config_lib.AdainConfig,
+                         progress: bool = False) -> Tuple[np.ndarray, np.ndarray]:
+  """The run's cache of render_content_features (written once, atomically, the statistics
+  last; a resumed run reads both back), checked against the crop size."""
+  path, stats_path = os.path.join(run_dir, FEATURE_MAPS), os.path.join(run_dir, FEATURE_STATS)
+  channels = vgg.LAYER_CHANNELS["relu4_1"]
+  if os.path.exists(stats_path):
+    maps = images_lib.read_npy(path, (None, None, None, channels)).astype(np.float16)
+    stats = images_lib.read_npy(stats_path, (2, channels))
+  else:
+    maps, stats = render_content_features(config.content_features, progress)
+    files.write_npy(path, maps)
+    files.write_npy(stats_path, stats)
+  cells = config.size // CELL
+  if min(maps.shape[1:3]) < cells:
+    raise UserError(f"{path}: feature maps of shape {maps.shape}, --size {config.size} needs "
+                    f"at least {cells} x {cells} cells")
+  return maps, stats
+
+
 class BatchLoader:
-  """Prepares (content, style, shifts) batches for steps [start, end) in a background thread.
+  """Prepares (content, style, shifts, features) batches for steps [start, end) in a
+  background thread: content [B - F, S, S, 3] photo crops (None when F = B), features
+  [F, S / 8, S / 8, 512] crops of the feature maps (None without them), F = feature_batch.
 
   The batch of step s is drawn from np.random.default_rng([seed, s]), so a resumed run sees
   the same batches. Errors in the thread are re-raised by `next()`.
   """
 
   def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig, start: int,
-               end: int, prefetch: int = 3):
+               end: int, prefetch: int = 3, feature_maps: Optional[np.ndarray] = None):
     self._queue: "queue.Queue" = queue.Queue(maxsize=prefetch)
     self._stop = threading.Event()
-    self._args = (content_pools, style_pools, config, start, end)
+    self._args = (content_pools, style_pools, config, start, end, feature_maps)
     self._thread = threading.Thread(target=self._run, daemon=True)
     self._thread.start()
 
   def _run(self):
-    content_pools, style_pools, config, start, end = self._args
+    content_pools, style_pools, config, start, end, feature_maps = self._args
+    n_features = feature_batch(config)
     try:
       for step in range(start, end):
         rng = np.random.default_rng([config.seed, step])
-        item = (random_crops(rng, content_pools, config.batch, config.size),
+        n_photos = config.batch - n_features
+        item = (random_crops(rng, content_pools, n_photos, config.size) if n_photos else None,
                 random_crops(rng, style_pools, config.batch, config.size),
-                random_shifts(rng, config.batch))
+                random_shifts(rng, config.batch),
+                random_feature_crops(rng, feature_maps, n_features, config.size // CELL)
+                if n_features else None)
         while not self._stop.is_set():
           try:
             self._queue.put(item, timeout=0.1)
@@ -120,7 +190,7 @@ class BatchLoader:
     except BaseException as e:  # pylint: disable=broad-except
       self._queue.put(e)
 
-  def next(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+  def next(self) -> Tuple[Optional[np.ndarray], np.ndarray, np.ndarray, Optional[np.ndarray]]:
     item = self._queue.get()
     if isinstance(item, BaseException):
       raise item
@@ -132,17 +202,20 @@ class BatchLoader:
 
 
 class PrefetchedBatches:
-  """The loop's batch function: step -> (content, style, shifts) of that step, from a BatchLoader
-  started at the first step asked for (where the run resumes) and running to config.steps."""
+  """The loop's batch function: step -> (content, style, shifts, features) of that step, from
+  a BatchLoader started at the first step asked for (where the run resumes) and running to
+  config.steps."""
 
-  def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig):
-    self._args = (content_pools, style_pools, config)
+  def __init__(self, content_pools, style_pools, config: config_lib.AdainConfig,
+               feature_maps: Optional[np.ndarray] = None):
+    self._args = (content_pools, style_pools, config, feature_maps)
     self._loader = None
 
-  def __call__(self, step: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+  def __call__(self, step: int):
     if self._loader is None:
-      content_pools, style_pools, config = self._args
-      self._loader = BatchLoader(content_pools, style_pools, config, step, config.steps)
+      content_pools, style_pools, config, feature_maps = self._args
+      self._loader = BatchLoader(content_pools, style_pools, config, step, config.steps,
+                                 feature_maps=feature_maps)
     return self._loader.next()
 
   def close(self):
@@ -188,17 +261,18 @@ def shift_loss(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
   the crop's AdaIN map `target` resampled by the shift (`resample_cells`).
 
   Args:
-    content, output: [B, S, S, 3]; style_mean, style_std: [B, 512] (relu4_1 statistics).
+    content, output: [B, S, S, 3] (content read with "photo" only); style_mean, style_std:
+      [B, 512] (relu4_1 statistics).
     shifts: [B, 2] int (dy, dx), each in [1, CELL).
     source: "photo" or "features" (config.SHIFT_SOURCES).
     target: [B, S / CELL, S / CELL, 512], the crop's AdaIN map; read with "features".
   Returns:
     [] mean squared pixel difference.
   """
-  side = content.shape[1] - CELL
+  side = output.shape[1] - CELL
   if source == "features":
-    chex.assert_shape(target, (content.shape[0], content.shape[1] // CELL,
-                               content.shape[2] // CELL, None))
+    chex.assert_shape(target, (output.shape[0], output.shape[1] // CELL,
+                               output.shape[2] // CELL, None))
     moved_target = jax.lax.stop_gradient(resample_cells(target, shifts))
   else:
     moved = adain_lib.encode(encoder_params, window(content, shifts, side))["relu4_1"]
@@ -209,24 +283,55 @@ def shift_loss(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,
   return jnp.mean(jnp.square(moved_out[:, inner, inner] - same[:, inner, inner]))
 
 
-def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style: jnp.ndarray,
-           config: config_lib.AdainConfig, shifts: Optional[jnp.ndarray] = None
+def adain_targets(encoder_params: Any, content: Optional[jnp.ndarray],
+                  features: Optional[jnp.ndarray], style_mean: jnp.ndarray,
+                  style_std: jnp.ndarray) -> jnp.ndarray:
+  """The relu4_1 maps the decoder paints: AdaIN of the photo crops' encodings (their own
+  statistics, the paper's), then the normalised feature crops given the style's statistics
+  (`n * std + mean`, as a feature run's view is stylized), concatenated along the batch.
+
+  Args:
+    content: [P, S, S, 3] or None; features: [F, S / 8, S / 8, 512] or None (P + F = B).
+    style_mean, style_std: [B, 512], the first P for the photos.
+  Returns:
+    [B, S / 8, S / 8, 512].
+  """
+  parts, p = [], 0
+  if content is not None:
+    p = content.shape[0]
+    feats = adain_lib.encode(encoder_params, content)["relu4_1"]
+    parts.append(adain_lib.adain_from_stats(feats, style_mean[:p], style_std[:p]))
+  if features is not None:
+    parts.append(features * style_std[p:, None, None] + style_mean[p:, None, None])
+  return jnp.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+def losses(decoder_params: Any, encoder_params: Any, content: Optional[jnp.ndarray],
+           style: jnp.ndarray, config: config_lib.AdainConfig,
+           shifts: Optional[jnp.ndarray] = None, features: Optional[jnp.ndarray] = None
            ) -> Tuple[jnp.ndarray, Dict[str, jnp.ndarray]]:
   """AdaIN training loss (Huang & Belongie eq. 11-13), plus the optional shift consistency.
 
   Args:
-    content, style: [B, S, S, 3] in [0, 1].
+    content: [P, S, S, 3] photo crops in [0, 1], or None; style: [B, S, S, 3] in [0, 1].
     shifts: [B, 2] int sub-cell shifts (`random_shifts`); read when config.shift_weight > 0.
+    features: [F, S / 8, S / 8, 512] feature crops normalised by their scene's statistics
+      (`render_content_features`), or None; P + F = B.
   Returns:
     (total [], {"loss", "content", "style"[, "shift"]}): content = MSE(relu4_1(g(t)), t) with
-    t = AdaIN(f(c), f(s)); style = sum over relu1_1..relu4_1 of MSE of means + MSE of stds;
-    shift = `shift_loss`, weighted by config.shift_weight.
+    t = AdaIN(f(c), f(s)) (`adain_targets`); style = sum over relu1_1..relu4_1 of MSE of
+    means + MSE of stds; shift = `shift_loss`, weighted by config.shift_weight.
   """
-  chex.assert_equal_shape([content, style])
+  n_photos = 0 if content is None else content.shape[0]
+  n_features = 0 if features is None else features.shape[0]
+  chex.assert_equal(n_photos + n_features, style.shape[0])
+  if content is not None:
+    chex.assert_equal_shape([content, style[:n_photos]])
+  if features is not None:
+    chex.assert_shape(features, (n_features, style.shape[1] // CELL, style.shape[2] // CELL, None))
   encoder_params = jax.lax.stop_gradient(encoder_params)  # frozen: XLA drops its backward.
-  content_feats = adain_lib.encode(encoder_params, content)["relu4_1"]
   target_stats = adain_lib.style_stats(encoder_params, style)
-  target = adain_lib.adain_from_stats(content_feats, *target_stats["relu4_1"])
+  target = adain_targets(encoder_params, content, features, *target_stats["relu4_1"])
   target = jax.lax.stop_gradient(target)
   output = decoder_lib.Decoder(config.upsample).apply(decoder_params, target)
   out_feats = adain_lib.encode(encoder_params, output)
@@ -236,7 +341,7 @@ def losses(decoder_params: Any, encoder_params: Any, content: jnp.ndarray, style
   total = config.content_weight * content_loss + config.style_weight * style_loss
   metrics = {"content": content_loss, "style": style_loss}
   if config.shift_weight > 0:
-    chex.assert_shape(shifts, (content.shape[0], 2))
+    chex.assert_shape(shifts, (style.shape[0], 2))
     mean, std = jax.lax.stop_gradient(target_stats["relu4_1"])
     metrics["shift"] = shift_loss(decoder_params, encoder_params, content, output, mean, std,
                                   shifts, config.upsample, config.shift_source, target)
@@ -254,21 +359,22 @@ def step_config(config: config_lib.AdainConfig) -> config_lib.AdainConfig:
   """`config` with only the fields the jitted step reads (losses, optimizer, upsampling) kept,
   so runs that differ in steps, sizes or bookkeeping share one compiled step."""
   return dataclasses.replace(config, steps=1, size=0, resize=0, batch=0, holdout_every=0, seed=0,
-                             sample_every=1, checkpoint_every=1, keep_checkpoints=1, init_from="")
+                             sample_every=1, checkpoint_every=1, keep_checkpoints=1, init_from="",
+                             content_features="", feature_share=0.5)
 
 
 @functools.lru_cache(maxsize=8)
 def make_train_step(config: config_lib.AdainConfig):
-  """jitted (params, opt_state, encoder_params, content, style[, shifts]) -> (params, opt_state,
-  metrics).
+  """jitted (params, opt_state, encoder_params, content, style[, shifts, features]) ->
+  (params, opt_state, metrics).
 
   Cached per (frozen) config, so a resumed or repeated run in one process compiles once.
   """
   optimizer = make_optimizer(config)
 
-  def step(params, opt_state, encoder_params, content, style, shifts=None):
+  def step(params, opt_state, encoder_params, content, style, shifts=None, features=None):
     grads, metrics = jax.grad(losses, has_aux=True)(params, encoder_params, content, style, config,
-                                                    shifts)
+                                                    shifts, features)
     updates, opt_state = optimizer.update(grads, opt_state, params)
     return optax.apply_updates(params, updates), opt_state, metrics
 
@@ -284,6 +390,20 @@ def make_stylize_fn(upsample: str):
     style_feats = adain_lib.encode(encoder_params, style)["relu4_1"]
     out = decoder_lib.Decoder(upsample).apply(decoder_params, adain_lib.adain(feats, style_feats))
     return jnp.clip(out, 0.0, 1.0)
+
+  return jax.jit(fn)
+
+
+@functools.lru_cache(maxsize=4)
+def make_feature_stylize_fn(upsample: str):
+  """jitted (decoder_params, encoder_params, normalised features [B,h,w,512], stats [2, 512],
+  style [B,H,W,3]) -> (the features decoded unstylized, stylized), each [B, 8h, 8w, 3]."""
+
+  def fn(decoder_params, encoder_params, features, stats, style):
+    mean, std = adain_lib.channel_stats(adain_lib.encode(encoder_params, style)["relu4_1"])
+    decode = lambda t: jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, t), 0.0, 1.0)
+    return (decode(features * stats[1] + stats[0]),
+            decode(features * std[:, None, None] + mean[:, None, None]))
 
   return jax.jit(fn)
 
@@ -341,6 +461,34 @@ def initial_decoder(config: config_lib.AdainConfig, resuming: bool = False) -> A
   return jax.tree_util.tree_map(jnp.asarray, source.params)
 
 
+def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence[str]) -> None:
+  """UserErrors for feature-map content settings that cannot work, before anything is written:
+  a share outside (0, 1], a folder that is not a loadable feature run (or whose views are
+  fewer cells than a crop), no photo folders for the photos' share, the shift loss's photo
+  source (feature crops have no pixels to move)."""
+  if not config.content_features:
+    if not content_dirs:
+      raise UserError("--content: give at least one content folder (or --content-features)")
+    return
+  if not 0.0 < config.feature_share <= 1.0:
+    raise UserError(f"--feature-share {config.feature_share}: must be in (0, 1]")
+  if feature_batch(config) < config.batch and not content_dirs:
+    raise UserError(f"--content: needed for the photo share of each batch "
+                    f"(or --feature-share 1)")
+  if config.shift_weight > 0 and config.shift_source != "features":
+    raise UserError(f"--shift-source {config.shift_source}: feature crops have no pixels to "
+                    f"move; use --shift-source features with --content-features")
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.feature_style import CELL as FEATURE_CELL, painted_size
+  run = runs_lib.load_run(config.content_features, "features")
+  scene, _ = runs_lib.scene_of(run)
+  cells = min(painted_size(scene.height, scene.width, run.config.stylize_scale)) // FEATURE_CELL
+  if cells < config.size // CELL:
+    raise UserError(f"{os.path.join(config.content_features, runs_lib.RUN_FILE)}: its views are "
+                    f"{cells} relu4_1 cells on their shorter side, --size {config.size} needs "
+                    f"{config.size // CELL}")
+
+
 @run_lock.released_after
 def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
           run_dir: str, progress: bool = True, log=print) -> TrainResult:
@@ -365,6 +513,8 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   if config.shift_weight > 0 and config.size < CELL + 2 * SHIFT_MARGIN + CELL:
     raise UserError(f"--size {config.size}: the shift loss needs crops of at least "
                     f"{CELL + 2 * SHIFT_MARGIN + CELL} pixels")
+  n_features = feature_batch(config)
+  check_feature_content(config, content_dirs)
   saved = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR)
   init_params = initial_decoder(config, resuming=os.path.isdir(saved) and bool(os.listdir(saved)))
   # Validate every input before touching the run folder.
@@ -391,12 +541,27 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     if start >= config.steps:
       log(f"{run_dir}: already trained to step {start} (>= --steps {config.steps})")
       return TrainResult(run_dir, start, {}, 0.0, 0.0)
+  feature_maps = feature_stats = None
+  if n_features:
+    log(f"feature maps of {config.content_features}: {n_features} of every {config.batch} crops")
+    feature_maps, feature_stats = prepare_feature_maps(run_dir, config, progress)
 
-  stylize = make_stylize_fn(config.upsample)
   sample_rng = np.random.default_rng([config.seed, 10**9])
   n_samples = min(4, config.batch)
-  sample_content = random_crops(sample_rng, content_pools, n_samples, config.size)
-  sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
+  if n_features == config.batch:  # no photos: the unstylized decode is the content column.
+    stylize_features = make_feature_stylize_fn(config.upsample)
+    sample_features = random_feature_crops(sample_rng, feature_maps, n_samples, config.size // CELL)
+    sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
+    def painted(params):
+      return tuple(map(np.asarray, stylize_features(params, encoder_params, sample_features,
+                                                    feature_stats, sample_style)))
+  else:
+    stylize = make_stylize_fn(config.upsample)
+    sample_content = random_crops(sample_rng, content_pools, n_samples, config.size)
+    sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
+    def painted(params):
+      return sample_content, np.asarray(stylize(params, encoder_params, sample_content,
+                                                sample_style))
   os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
   train_step = make_train_step(step_config(config))
   # Shared with the loop's hooks: the last good checkpoint, the latest state, the last step
@@ -430,16 +595,16 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     else:
       timed_steps += 1
     if step % config.sample_every == 0 or step == config.steps:
-      out = np.asarray(stylize(state.params, encoder_params, sample_content, sample_style))
+      content, out = painted(state.params)
       images_lib.write_image(os.path.join(run_dir, "samples", f"step_{step:07d}.png"),
-                             sample_grid(sample_content, sample_style, out))
+                             sample_grid(content, sample_style, out))
     if step % config.checkpoint_every == 0 or step == config.steps:  # the loop saves it next.
       check_finite(state.params, step)
       last_good = step
 
   state = state_lib.create_state(init_params, make_optimizer(config))
   state = state.replace(step=np.asarray(0, np.int64))  # the step as AdaIN checkpoints hold it.
-  batches = PrefetchedBatches(content_pools, style_pools, config)
+  batches = PrefetchedBatches(content_pools, style_pools, config, feature_maps)
   try:
     summary = loop_lib.fit(state, step_fn, batches, run_dir=run_dir, steps=config.steps,
                            checkpoint_every=config.checkpoint_every,
