@@ -108,9 +108,15 @@ def feature_batch(config: config_lib.AdainConfig) -> int:
   return min(config.batch, max(1, round(config.batch * config.feature_share)))
 
 
-def render_content_features(feature_run_dir: str, progress: bool = False
-                            ) -> Tuple[np.ndarray, np.ndarray]:
-  """A feature run's relu4_1 maps of its scene's training views (views.render_feature_map,
+def feature_source(config: config_lib.AdainConfig):
+  """(run, scene) of config.content_features: the feature run (UserError unless it is one)
+  and its scene as it was trained."""
+  run = runs_lib.load_run(config.content_features, "features")
+  return run, runs_lib.scene_of(run)[0]
+
+
+def render_content_features(source, progress: bool = False) -> Tuple[np.ndarray, np.ndarray]:
+  """A feature run's (`source`: feature_source's (run, scene)) relu4_1 maps of its scene's training views (views.render_feature_map,
   the background feature filling each cell), normalised by the run's content statistics
   (runs.content_stats, what rendering normalises by).
 
@@ -121,8 +127,7 @@ def render_content_features(feature_run_dir: str, progress: bool = False
   # pylint: disable=g-import-not-at-top
   from msnerf_jax import views
   from msnerf_jax.progress import progress_bar
-  run = runs_lib.load_run(feature_run_dir, "features")
-  scene, _ = runs_lib.scene_of(run)
+  run, scene = source
   mean, std = runs_lib.content_stats(run)
   maps = [(views.render_feature_map(scene, run.params, run.config, int(i))["features"] - mean) / std
           for i in progress_bar(scene.split("train"), desc="feature maps", disable=not progress,
@@ -130,17 +135,18 @@ def render_content_features(feature_run_dir: str, progress: bool = False
   return np.stack(maps).astype(np.float16), np.stack([mean, std]).astype(np.float32)
 
 
-def prepare_feature_maps(run_dir: str, config: config_lib.AdainConfig,
+def prepare_feature_maps(run_dir: str, config: config_lib.AdainConfig, source=None,
                          progress: bool = False) -> Tuple[np.ndarray, np.ndarray]:
   """The run's cache of render_content_features (written once, atomically, the statistics
-  last; a resumed run reads both back), checked against the crop size."""
+  last; a resumed run reads both back), checked against the crop size. source: the feature
+  run's (run, scene) if already loaded (default: feature_source(config))."""
   path, stats_path = os.path.join(run_dir, FEATURE_MAPS), os.path.join(run_dir, FEATURE_STATS)
   channels = vgg.LAYER_CHANNELS["relu4_1"]
   if os.path.exists(stats_path):
     maps = images_lib.read_npy(path, (None, None, None, channels)).astype(np.float16)
     stats = images_lib.read_npy(stats_path, (2, channels))
   else:
-    maps, stats = render_content_features(config.content_features, progress)
+    maps, stats = render_content_features(source or feature_source(config), progress)
     files.write_npy(path, maps)
     files.write_npy(stats_path, stats)
   cells = config.size // CELL
@@ -402,8 +408,9 @@ def make_feature_stylize_fn(upsample: str):
   def fn(decoder_params, encoder_params, features, stats, style):
     mean, std = adain_lib.channel_stats(adain_lib.encode(encoder_params, style)["relu4_1"])
     decode = lambda t: jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, t), 0.0, 1.0)
-    return (decode(features * stats[1] + stats[0]),
-            decode(features * std[:, None, None] + mean[:, None, None]))
+    own = [jnp.broadcast_to(x, mean.shape) for x in stats]  # AdaIN towards the scene: identity.
+    return (decode(adain_targets(encoder_params, None, features, *own)),
+            decode(adain_targets(encoder_params, None, features, mean, std)))
 
   return jax.jit(fn)
 
@@ -461,15 +468,17 @@ def initial_decoder(config: config_lib.AdainConfig, resuming: bool = False) -> A
   return jax.tree_util.tree_map(jnp.asarray, source.params)
 
 
-def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence[str]) -> None:
+def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence[str]):
   """UserErrors for feature-map content settings that cannot work, before anything is written:
   a share outside (0, 1], a folder that is not a loadable feature run (or whose views are
   fewer cells than a crop), no photo folders for the photos' share, the shift loss's photo
-  source (feature crops have no pixels to move)."""
+  source (feature crops have no pixels to move).
+
+  Returns: the feature run's (run, scene) (feature_source), or None without feature content."""
   if not config.content_features:
     if not content_dirs:
       raise UserError("--content: give at least one content folder (or --content-features)")
-    return
+    return None
   if not 0.0 < config.feature_share <= 1.0:
     raise UserError(f"--feature-share {config.feature_share}: must be in (0, 1]")
   if feature_batch(config) < config.batch and not content_dirs:
@@ -479,14 +488,14 @@ def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence
     raise UserError(f"--shift-source {config.shift_source}: feature crops have no pixels to "
                     f"move; use --shift-source features with --content-features")
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.feature_style import CELL as FEATURE_CELL, painted_size
-  run = runs_lib.load_run(config.content_features, "features")
-  scene, _ = runs_lib.scene_of(run)
-  cells = min(painted_size(scene.height, scene.width, run.config.stylize_scale)) // FEATURE_CELL
+  from msnerf_jax.feature_style import painted_size
+  run, scene = source = feature_source(config)
+  cells = min(painted_size(scene.height, scene.width, run.config.stylize_scale)) // CELL
   if cells < config.size // CELL:
     raise UserError(f"{os.path.join(config.content_features, runs_lib.RUN_FILE)}: its views are "
                     f"{cells} relu4_1 cells on their shorter side, --size {config.size} needs "
                     f"{config.size // CELL}")
+  return source
 
 
 @run_lock.released_after
@@ -514,7 +523,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
     raise UserError(f"--size {config.size}: the shift loss needs crops of at least "
                     f"{CELL + 2 * SHIFT_MARGIN + CELL} pixels")
   n_features = feature_batch(config)
-  check_feature_content(config, content_dirs)
+  feature_run = check_feature_content(config, content_dirs)
   saved = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR)
   init_params = initial_decoder(config, resuming=os.path.isdir(saved) and bool(os.listdir(saved)))
   # Validate every input before touching the run folder.
@@ -544,7 +553,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   feature_maps = feature_stats = None
   if n_features:
     log(f"feature maps of {config.content_features}: {n_features} of every {config.batch} crops")
-    feature_maps, feature_stats = prepare_feature_maps(run_dir, config, progress)
+    feature_maps, feature_stats = prepare_feature_maps(run_dir, config, feature_run, progress)
 
   sample_rng = np.random.default_rng([config.seed, 10**9])
   n_samples = min(4, config.batch)
