@@ -1,7 +1,9 @@
 """`msnerf adain train|stylize`: end to end on tiny images, help text, and bad input (exit 2)."""
 
 import argparse
+import json
 import os
+import shutil
 import sys
 import types
 
@@ -194,8 +196,15 @@ def test_bad_shift_weight_and_init_from_exit_2_nothing_written(trained, run_dir,
   _one_line_error(capsys, _main(base + ["--shift-source", "pixels"]), "--shift-source", "pixels")
   _one_line_error(capsys, _main(base + ["--init-from", str(tmp_path / "nowhere")]), "nowhere",
                   "no such run folder")
-  _one_line_error(capsys, _main(base + ["--init-from", run_dir, "--upsample", "bilinear"]),
-                  "run.json", "upsample")
+  # A decoder of another encoder (another upsampling may be fine-tuned from it).
+  shutil.copytree(run_dir, tmp_path / "vgg19")
+  with open(tmp_path / "vgg19" / "run.json") as f:
+    other_encoder = json.load(f)
+  other_encoder["config"]["encoder"] = "vgg19"
+  with open(tmp_path / "vgg19" / "run.json", "w") as f:
+    json.dump(other_encoder, f)
+  _one_line_error(capsys, _main(base + ["--init-from", str(tmp_path / "vgg19")]),
+                  "vgg19/run.json", "decoder made with encoder 'vgg19'")
   assert not (tmp_path / "tuned").exists()
   # --content-features names a folder that is not a feature run; no content at all.
   _one_line_error(capsys, _main(base + ["--content-features", run_dir]), "run.json",

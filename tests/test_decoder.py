@@ -310,10 +310,13 @@ def test_init_from_starts_from_that_decoder_and_checks_it(tmp_path, folders):
   # A resumed run restores its own checkpoint: the init is only the structure.
   fresh = train_adain.initial_decoder(tuned, resuming=True)
   assert jax.tree_util.tree_structure(fresh) == jax.tree_util.tree_structure(trained)
-  # Another upsampling cannot start from it; nothing of the new run is written.
-  other = dataclasses.replace(tuned, upsample="bilinear")
+  # A bilinear decoder may start from it (same parameters, another upsampling).
+  bilinear = train_adain.initial_decoder(dataclasses.replace(tuned, upsample="bilinear"))
+  jax.tree_util.tree_map(np.testing.assert_array_equal, bilinear, trained)
+  # A decoder of another encoder cannot; nothing of the new run is written.
+  other = dataclasses.replace(tuned, encoder="vgg19")
   run = str(tmp_path / "tuned")
-  with pytest.raises(UserError, match=r"source/run.json: decoder made with upsample 'nearest'"):
+  with pytest.raises(UserError, match=r"source/run.json: decoder made with encoder 'vgg16"):
     train_adain.train(other, [content], styles, run, progress=False, log=lambda *_: None)
   assert not os.path.exists(run)
   # Fine-tuning trains from there and records the shift loss.

@@ -65,7 +65,8 @@ def register(commands, formatter):
                           "map resampled bilinearly by the shift (a feature field's case)")
   train.add_argument("--init-from", default=_DEFAULTS.init_from, metavar="ADAIN_RUN",
                      help="start from this AdaIN run's decoder instead of a random init "
-                          "(fine-tuning, e.g. with --shift-weight)")
+                          "(fine-tuning, e.g. with --shift-weight; its upsampling may differ "
+                          "from --upsample)")
   train.add_argument("--holdout-every", type=int, default=_DEFAULTS.holdout_every,
                      help="if > 0, every n-th image of each content folder is never trained on "
                           "(listed in RUN_DIR/holdout.txt for evaluation)")

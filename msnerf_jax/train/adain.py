@@ -455,16 +455,17 @@ def collect_content(content_dirs: Sequence[str], holdout_every: int) -> Tuple[Li
 
 def initial_decoder(config: config_lib.AdainConfig, resuming: bool = False) -> Any:
   """The decoder params a new run starts from: a random init, or with `init_from` the latest
-  checkpoint of that AdaIN run (same encoder and upsampling; a UserError naming it otherwise).
-  A resumed run restores its own checkpoint, so the random init only gives the structure."""
+  checkpoint of that AdaIN run (same encoder; a UserError naming it otherwise). Its upsampling
+  may differ: nearest and bilinear decoders have the same parameters, so a nearest decoder can
+  be fine-tuned into a bilinear one. A resumed run restores its own checkpoint, so the random
+  init only gives the structure."""
   if not config.init_from or resuming:
     return decoder_lib.init_decoder(jax.random.PRNGKey(config.seed), config.upsample)
   source = runs_lib.load_run(config.init_from, KIND)
   run_file = os.path.join(config.init_from, runs_lib.RUN_FILE)
-  for name in ("encoder", "upsample"):
-    theirs, ours = getattr(source.config, name), getattr(config, name)
-    if theirs != ours:
-      raise UserError(f"{run_file}: decoder made with {name} {theirs!r}, this run uses {ours!r}")
+  if source.config.encoder != config.encoder:
+    raise UserError(f"{run_file}: decoder made with encoder {source.config.encoder!r}, "
+                    f"this run uses {config.encoder!r}")
   return jax.tree_util.tree_map(jnp.asarray, source.params)
 
 
