@@ -56,7 +56,7 @@ def encoder_cells(encoder, rgb, scale):
 def to_pixels(cells, basis, height, width, scale):
   """[h, w, 512] cells -> [height, width, K]: projected on basis [512, K], enlarged bilinearly
   (half-pixel centres) to the painted size, cropped to the enlarged frame, box-averaged to the
-  frame's size."""
+  frame's size (images_lib.resize's box filter, without its clip to [0, 1])."""
   ch, cw = cells.shape[:2]
   low = jnp.asarray(cells.reshape(-1, cells.shape[-1]) @ basis).reshape(ch, cw, -1)
   big = jax.image.resize(low, (ch * CELL, cw * CELL, low.shape[-1]), "bilinear")

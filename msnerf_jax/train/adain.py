@@ -21,16 +21,18 @@ from msnerf_jax import files
 from msnerf_jax import runs as runs_lib
 from msnerf_jax import config as config_lib
 from msnerf_jax import run_lock
+from msnerf_jax import views
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.errors import UserError
+from msnerf_jax.feature_style import CELL, painted_size
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
 from msnerf_jax.parallel import data_parallel
+from msnerf_jax.progress import progress_bar
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
 KIND = "adain"
-CELL = 8  # pixels of the encoder's input per relu4_1 cell (three 2x poolings).
 SHIFT_MARGIN = 8  # pixels at each border of a crop left out of the shift loss (border effects).
 FEATURE_MAPS = "content_features.npy"  # [N, h, w, 512] float16: a feature run's normalised maps.
 FEATURE_STATS = "content_features_stats.npy"  # [2, 512]: the (mean, std) they were normalised by.
@@ -116,17 +118,14 @@ def feature_source(config: config_lib.AdainConfig):
 
 
 def render_content_features(source, progress: bool = False) -> Tuple[np.ndarray, np.ndarray]:
-  """A feature run's (`source`: feature_source's (run, scene)) relu4_1 maps of its scene's training views (views.render_feature_map,
+  """A feature run's relu4_1 maps of its scene's training views (views.render_feature_map,
   the background feature filling each cell), normalised by the run's content statistics
-  (runs.content_stats, what rendering normalises by).
+  (runs.content_stats, what rendering normalises by). source: feature_source's (run, scene).
 
   AdaIN towards a style's (mean, std) is then `n * std + mean`, exactly what
   feature_style.stylize_features gives the decoder when a view of the run is painted.
 
   Returns: (maps [N, h, w, 512] float16, statistics [2, 512] float32: mean, std)."""
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax import views
-  from msnerf_jax.progress import progress_bar
   run, scene = source
   mean, std = runs_lib.content_stats(run)
   maps = [(views.render_feature_map(scene, run.params, run.config, int(i))["features"] - mean) / std
@@ -176,10 +175,10 @@ class BatchLoader:
   def _run(self):
     content_pools, style_pools, config, start, end, feature_maps = self._args
     n_features = feature_batch(config)
+    n_photos = config.batch - n_features
     try:
       for step in range(start, end):
         rng = np.random.default_rng([config.seed, step])
-        n_photos = config.batch - n_features
         item = (random_crops(rng, content_pools, n_photos, config.size) if n_photos else None,
                 random_crops(rng, style_pools, config.batch, config.size),
                 random_shifts(rng, config.batch),
@@ -488,8 +487,6 @@ def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence
   if config.shift_weight > 0 and config.shift_source != "features":
     raise UserError(f"--shift-source {config.shift_source}: feature crops have no pixels to "
                     f"move; use --shift-source features with --content-features")
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.feature_style import painted_size
   run, scene = source = feature_source(config)
   cells = min(painted_size(scene.height, scene.width, run.config.stylize_scale)) // CELL
   if cells < config.size // CELL:
