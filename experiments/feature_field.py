@@ -2,6 +2,7 @@
 
   python experiments/feature_field.py --features FEATURE_RUN --styles A.jpg B.jpg ... \
       [--frames 40] [--decoder ADAIN_RUN] [--stats rendered|encoded] [--out DIR]
+  python experiments/feature_field.py --features FEATURE_RUN --only-alpha0 [--heldout 5] ...
 
 Along the scene's render path (its NeRF renders the geometry and the photo-real frames):
   per-frame:  each photo-real frame stylized on its own (stylize.stylize_image, the run's
@@ -14,9 +15,10 @@ warped RMSE and LPIPS at k = 1 and 7 (msnerf_jax.consistency), and the AdaIN con
 photo-real frame, style)). Then: how distinct the styles stay (mean pairwise AdaIN distance
 between the frames of different styles), alpha = 0 (decoding the rendered features with the
 scene's own statistics against decoding the encoder's features of the photo-real frame, PSNR
-on held-out views), and the cost of switching style (a cached feature render against
-per-frame AdaIN of the same frame). Background pixels go back to white on Blender scenes,
-for both methods, as in `msnerf evaluate`. Writes OUT/results.md, .json and frames.png;
+on held-out views; each of the two against the photo-real frame too), and the cost of
+switching style (a cached feature render against per-frame AdaIN of the same frame).
+Background pixels go back to white on Blender scenes, for both methods, as in `msnerf
+evaluate`. Writes OUT/results.md, .json and frames.png (--only-alpha0: OUT/alpha0.json);
 prints the hardware and wall time.
 """
 
@@ -63,11 +65,31 @@ def psnr(a, b):
   return float(-10.0 * np.log10(np.mean(np.square(np.asarray(a) - np.asarray(b)))))
 
 
+def alpha0(scene, nerf, run, decoder, encoder, stats, heldout, grids, paint, scale):
+  """alpha = 0 on `heldout` evenly spaced held-out views: the decoder's picture of the
+  rendered features (the scene's own statistics) against its picture of the encoder's
+  features of the photo-real render, and each against that render. Returns
+  {"alpha0_psnr": [...], "alpha0_field_vs_photo": [...], "alpha0_encoder_vs_photo": [...]}."""
+  held = scene.split("val" if "val" in scene.splits and len(scene.splits["val"]) else "test")
+  held = held[np.linspace(0, len(held) - 1, heldout).round().astype(int)]
+  plain = style_vector_of_stats(stats)
+  out = {"alpha0_psnr": [], "alpha0_field_vs_photo": [], "alpha0_encoder_vs_photo": []}
+  for v in held:
+    photo = views.render_view(scene, nerf.params, nerf.config, int(v))["rgb"]
+    ours = paint(views.feature_maps(scene, run.params, run.config, int(v), grids), plain[None])[0]
+    theirs = stylize.stylize_image(decoder, encoder, photo, [photo], alpha=0.0, scale=scale,
+                                   content_stats=(stats[0][None], stats[1][None]))
+    for key, a, b in (("alpha0_psnr", ours, theirs), ("alpha0_field_vs_photo", ours, photo),
+                      ("alpha0_encoder_vs_photo", theirs, photo)):
+      out[key].append(psnr(a, b))
+  return out
+
+
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--features", required=True, help="feature run (`msnerf features train`)")
-  parser.add_argument("--styles", nargs="+", required=True, help="style images")
+  parser.add_argument("--styles", nargs="+", default=[], help="style images")
   parser.add_argument("--frames", type=int, default=40, help="frames of the render path")
   parser.add_argument("--heldout", type=int, default=5, help="held-out views for alpha = 0")
   parser.add_argument("--decoder", default=None,
@@ -81,6 +103,8 @@ def main():
   parser.add_argument("--grids", type=int, default=1,
                       help="cell grids each feature-field frame is averaged over "
                            "(views.render_feature_styles' grids: 1, 2 or 4)")
+  parser.add_argument("--only-alpha0", action="store_true",
+                      help="measure alpha = 0 alone (no path, no styles): OUT/alpha0.json")
   parser.add_argument("--out", default=None, help="output folder (default: RUN/compare)")
   args = parser.parse_args()
   t0 = time.time()
@@ -93,6 +117,22 @@ def main():
       np.load(os.path.join(args.features, CONTENT_STATS)))
   scale = run.config.stylize_scale
   out_dir = args.out or os.path.join(args.features, "compare")
+  paint = lambda maps, vecs: views.paint_feature_maps(maps, decoder, stats, vecs, scene.height,
+                                                      scene.width, scale)
+  hardware = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+              f"jax {jax.__version__} on {jax.devices()[0].platform}")
+  if args.only_alpha0:
+    result = {**alpha0(scene, nerf, run, decoder, encoder, stats, args.heldout, args.grids,
+                       paint, scale), "run": os.path.abspath(args.features), "step": run.step,
+              "decoder": os.path.abspath(decoder_dir), "stats": args.stats, "grids": args.grids,
+              "hardware": hardware, "seconds": time.time() - t0}
+    os.makedirs(out_dir, exist_ok=True)
+    with open(os.path.join(out_dir, "alpha0.json"), "w") as f:
+      json.dump(result, f, indent=2)
+    print(json.dumps(result, indent=1))
+    return
+  if not args.styles:
+    parser.error("--styles: required (unless --only-alpha0)")
   lp = lambda a, b: np.asarray(metrics.lpips(lpips_params, jnp.asarray(a), jnp.asarray(b)))
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, args.frames)
                              .round().astype(int)]
@@ -100,8 +140,6 @@ def main():
           tqdm(poses, desc="NeRF path", leave=False)]
   fmaps = [views.feature_maps(scene, run.params, run.config, c2w, args.grids) for c2w in
            tqdm(poses, desc="feature path", leave=False)]
-  paint = lambda maps, vecs: views.paint_feature_maps(maps, decoder, stats, vecs, scene.height,
-                                                      scene.width, scale)
   ph, pw = painted_size(scene.height, scene.width, scale)
   pictures = [images_lib.read_image(p, max_side=1024) for p in args.styles]
   names = [os.path.splitext(os.path.basename(p))[0] for p in args.styles]
@@ -139,17 +177,9 @@ def main():
     distinct[method] = float(np.mean(pairs)) if pairs else float("nan")
   # alpha = 0 on held-out views: the decoder's picture of the rendered features against its
   # picture of the encoder's features of the photo-real render.
-  held = scene.split("val" if "val" in scene.splits and len(scene.splits["val"]) else "test")
-  held = held[np.linspace(0, len(held) - 1, args.heldout).round().astype(int)]
-  plain = style_vector_of_stats(stats)
-  agree = []
-  for v in held:
-    photo = views.render_view(scene, nerf.params, nerf.config, int(v))["rgb"]
-    ours = paint(views.feature_maps(scene, run.params, run.config, int(v), args.grids),
-                 plain[None])[0]
-    theirs = stylize.stylize_image(decoder, encoder, photo, [photo], alpha=0.0, scale=scale,
-                                   content_stats=(stats[0][None], stats[1][None]))
-    agree.append(psnr(ours, theirs))
+  zero = alpha0(scene, nerf, run, decoder, encoder, stats, args.heldout, args.grids, paint,
+                scale)
+  agree = zero["alpha0_psnr"]
   # Cost of switching style on one frame: cached features vs per-frame AdaIN (compiled first).
   f0, photo0 = fmaps[0], base[0]["rgb"]
   def feature_switch():
@@ -172,13 +202,11 @@ def main():
                                         "lpips_k7", "content")}} for n in names]
   result = {"rows": rows, "ratios": ratios, "distinct": distinct,
             "distinct_ratio": distinct["feature-field"] / distinct["adain-per-frame"],
-            "alpha0_psnr": agree, "alpha0_psnr_mean": float(np.mean(agree)), **timing,
+            **zero, "alpha0_psnr_mean": float(np.mean(agree)), **timing,
             "switch_ratio": timing["feature_switch_s"] / timing["per_frame_s"],
             "run": os.path.abspath(args.features), "step": run.step, "frames": args.frames,
             "decoder": os.path.abspath(decoder_dir), "stats": args.stats, "grids": args.grids,
-            "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-                        f"jax {jax.__version__} on {jax.devices()[0].platform}",
-            "seconds": time.time() - t0}
+            "hardware": hardware, "seconds": time.time() - t0}
   keys = ("style_adain", "rmse_k1", "lpips_k1", "rmse_k7", "lpips_k7", "content")
   lines = ["| method | style | " + " | ".join(keys) + " |", "|" + "---|" * (len(keys) + 2)]
   lines += [f"| {r['method']} | {r['style']} | " + " | ".join(f"{r[k]:.4f}" for k in keys) + " |"
@@ -191,7 +219,9 @@ def main():
                 f"{distinct['feature-field']:.4f}, per-frame {distinct['adain-per-frame']:.4f} "
                 f"(ratio {result['distinct_ratio']:.2f})",
             f"alpha = 0 agreement on {len(agree)} held-out views: {result['alpha0_psnr_mean']:.2f} "
-            f"dB", f"switching style: {timing['feature_switch_s']:.3f} s on cached features, "
+            f"dB (to the photo-real render: the field's decode "
+            f"{np.mean(zero['alpha0_field_vs_photo']):.2f} dB, the encoder's "
+            f"{np.mean(zero['alpha0_encoder_vs_photo']):.2f} dB)", f"switching style: {timing['feature_switch_s']:.3f} s on cached features, "
                    f"{timing['per_frame_s']:.3f} s per-frame AdaIN (ratio "
                    f"{result['switch_ratio']:.2f})",
             f"{result['hardware']}; {result['seconds']:.0f} s"]

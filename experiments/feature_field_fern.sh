@@ -7,7 +7,8 @@
 #      16 hash features (the default 64 from 4 explains less of fern's relu4_1: README);
 #   4. the decoder fine-tuned for shift consistency (500 steps, --shift-source features);
 #   5. the decoder fine-tuned on the feature run's own renders (600 steps, half of each batch
-#      crops of its maps, --content-features) with the same shift loss;
+#      crops of its maps, --content-features) with three times that shift loss (the decoder
+#      that meets every fern target but the warped RMSE);
 #      train_adain_decoder.sh evaluates each decoder on its held-out images too;
 #   6. feature_field.py with each decoder: 15 spiral frames, 5 styles (scene_de_rue held out).
 # About 3 hours on an idle 2-core CPU (README, "Feature field: AdaIN in 3D"). Re-running resumes.
@@ -35,7 +36,7 @@ msnerf features train --nerf "$OUT/nerf" --decoder "$OUT/decoder" --out "$OUT/fe
 "$HERE/train_adain_decoder.sh" "$OUT/decoder_shift" "$OUT/styles12" --init-from "$OUT/decoder" \
   --steps 500 --lr 1e-4 --shift-weight 1000 --shift-source features
 "$HERE/train_adain_decoder.sh" "$OUT/decoder_field" "$OUT/styles12" --init-from "$OUT/decoder" \
-  --steps 600 --lr 1e-4 --content-features "$OUT/features" --shift-weight 1000 \
+  --steps 600 --lr 1e-4 --content-features "$OUT/features" --shift-weight 3000 \
   --shift-source features
 for dec in decoder_field decoder_shift decoder; do
   python "$HERE/feature_field.py" --features "$OUT/features" --decoder "$OUT/$dec" \

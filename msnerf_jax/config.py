@@ -230,6 +230,16 @@ class FeatureConfig:
   # the object's cells no better than zeros (the median of sparse ReLU features that
   # differ from view to view); MSE fits their mean.
   loss: str = "mse"
+  # Decodability: each step the frozen AdaIN decoder also paints decode_patches square
+  # patches of decode_cells x decode_cells rendered cells (alpha = 0: the features as they
+  # are), and the MSE of its picture (one cell's margin left out) to decode_target is added,
+  # weighted by decode_weight (0: off): "photo", the view's pixels, or "encoder", the
+  # decoder's picture of the view's own relu4_1 cells (what per-frame AdaIN paints at
+  # alpha = 0).
+  decode_weight: float = 0.0
+  decode_target: str = "photo"
+  decode_patches: int = 2
+  decode_cells: int = 6
   steps: int = 4000
   lr_init: float = 2e-2
   lr_final: float = 1e-3

@@ -182,6 +182,59 @@ def test_training_lowers_the_loss_on_a_fixed_batch(feature_world, sampler):
   assert last < 0.8 * first, (first, last)
 
 
+@pytest.mark.parametrize("target", ["photo", "encoder"])
+def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alone(
+    feature_world, target):
+  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  scene = feature_world["scene"]
+  source = msnerf_jax.load_run(feature_world["nerf"])
+  decoder = stylize.load_decoder(feature_world["decoder"])
+  config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5,
+                               decode_weight=1.0, decode_target=target, decode_patches=2,
+                               decode_cells=3)
+  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], features.TARGETS)))
+  views = scene.images[scene.split("train")]
+  big = np.stack([features.enlarged(v, 2) for v in views])  # [4, 32, 32, 3]
+  args = (jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, False,
+          (scene.height, scene.width, scene.focal), scene.near, scene.far, None,
+          jnp.asarray(big, jnp.float16))
+  batch = features.sample_batch(jax.random.PRNGKey(5), targets, *args)
+  assert batch["patch_rays"]["origins"].shape[0] == 2 * 9 * config.rays_per_cell
+  # Each patch is 3 x 3 whole cells (8 x 8 pixels each) of one enlarged training view: its
+  # pixels, or its encoder's cells.
+  if target == "photo":
+    assert batch["pixels"].shape == (2, 24, 24, 3) and "patch_targets" not in batch
+    for patch in np.asarray(batch["pixels"], np.float32):
+      assert any(np.array_equal(patch, v[8 * r:8 * r + 24, 8 * c:8 * c + 24]
+                                .astype(np.float16).astype(np.float32))
+                 for v in big for r in range(2) for c in range(2))
+  else:
+    assert batch["patch_targets"].shape == (2, 3, 3, 512) and "pixels" not in batch
+    for patch in np.asarray(batch["patch_targets"]):
+      assert any(np.array_equal(patch, t[r:r + 3, c:c + 3])
+                 for t in np.asarray(targets) for r in range(2) for c in range(2))
+  state = features.init_state(config, source.params)
+  loss = jax.jit(features.loss_fn, static_argnums=(3, 5))
+  off = dataclasses.replace(config, decode_weight=0.0)
+  first = loss(state.params["features"], state.params["nerf"], batch, config, decoder.params,
+               decoder.config.upsample)[1]
+  plain = loss(state.params["features"], state.params["nerf"], batch, off)[1]
+  assert float(first["mse"]) == float(plain["mse"]) and "decode" not in plain
+  np.testing.assert_allclose(float(first["loss"]), float(first["mse"] + first["decode"]),
+                             rtol=1e-6)
+  step = jax.jit(functools.partial(features.train_step, config=config,
+                                   upsample=decoder.config.upsample))
+  nerf_before = [np.asarray(x).copy() for x in leaves(state.params["nerf"])]
+  for i in range(30):
+    state, _ = step(state, features.sample_batch(jax.random.PRNGKey(i), targets, *args),
+                    decoder.params)
+  last = loss(state.params["features"], state.params["nerf"], batch, config, decoder.params,
+              decoder.config.upsample)[1]
+  assert float(last["decode"]) < 0.8 * float(first["decode"]), (first, last)
+  for a, b in zip(leaves(state.params["nerf"]), nerf_before):
+    assert np.array_equal(np.asarray(a), b)
+
+
 def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_features(
     feature_world):
   from msnerf_jax import stylize, views  # pylint: disable=g-import-not-at-top
@@ -308,21 +361,27 @@ TWO_DEVICES = textwrap.dedent("""
     import msnerf_jax
     from msnerf_jax.config import DataConfig
     from msnerf_jax.data.scene import load_scene
+    from msnerf_jax import stylize
     from msnerf_jax.parallel import data_parallel
     from msnerf_jax.train import features
     sys.path.insert(0, {tests!r})
     from test_feature_field import TINY_FEATURES
     scene, _ = load_scene(DataConfig(path={scene!r}))
     source = msnerf_jax.load_run({nerf!r})
-    config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5)
+    config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5,
+                                 decode_weight={decode_weight!r}, decode_cells=3)
+    decoder = stylize.load_decoder({decoder!r})
     targets = jnp.asarray(np.load({targets!r}))
+    pixels = jnp.asarray(np.stack([features.enlarged(v, 2) for v in scene.images[:4]]),
+                         jnp.float16)
     def run(dp):
       state = dp.put_state(features.init_state(config, source.params))
-      step = features.compile_train_step(config, dp)
+      step = features.compile_train_step(config, dp, decoder)
       for i in range(4):
         batch = features.sample_batch(jax.random.PRNGKey(i), targets, jnp.asarray(scene.c2w[:4]),
                                       jnp.asarray(scene.K), config, False,
-                                      (scene.height, scene.width, scene.focal), 2.0, 6.0)
+                                      (scene.height, scene.width, scene.focal), 2.0, 6.0,
+                                      None, pixels)
         state, stats = step(state, dp.put_batch(batch))
       return dp.to_host(state)
     one, two = run(data_parallel(1)), run(data_parallel(2))
@@ -337,10 +396,12 @@ TWO_DEVICES = textwrap.dedent("""
 
 
 @pytest.mark.slow  # a subprocess with two compilations
-def test_two_devices_give_the_same_feature_steps_as_one(feature_world):
+@pytest.mark.parametrize("decode_weight", [0.0, 1.0])
+def test_two_devices_give_the_same_feature_steps_as_one(feature_world, decode_weight):
   tests = os.path.dirname(os.path.abspath(__file__))
   code = TWO_DEVICES.format(tests=tests, scene=feature_world["scene_dir"],
-                            nerf=feature_world["nerf"],
+                            nerf=feature_world["nerf"], decoder=feature_world["decoder"],
+                            decode_weight=decode_weight,
                             targets=os.path.join(feature_world["run"], features.TARGETS))
   result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=600)
@@ -363,12 +424,28 @@ def test_a_feature_run_pointed_at_another_nerf_run_is_refused(feature_world, tmp
   assert {f: os.path.getmtime(os.path.join(run, f)) for f in os.listdir(run)} == before
 
 
+def test_a_decodability_patch_wider_than_the_views_is_refused_before_writing(
+    feature_world, tmp_path, capsys):
+  run = str(tmp_path / "wide")
+  assert cli.main(["features", "train", "--nerf", feature_world["nerf"], "--decoder",
+                   feature_world["decoder"], "--out", run, "--stylize-scale", "2",
+                   "--decode-weight", "1", "--decode-cells", "5"]) == 2
+  err = capsys.readouterr().err.strip().splitlines()
+  assert err == ["msnerf: error: --decode-cells 5: a patch wider than the views' 4 x 4 relu4_1 "
+                 "cells"], err
+  assert not os.path.exists(run)
+
+
 @pytest.mark.parametrize("change, message", [
     ({"stylize_scale": 0}, "--stylize-scale 0: must be a whole number"),
     ({"stylize_scale": 1.5}, "--stylize-scale 1.5: must be a whole number"),
     ({"hash_table_size": 1000}, "--hash-table-size 1000: must be a power of two"),
     ({"dim": 0}, "--dim 0: must be >= 1"),
     ({"hash_min_res": 64}, "--hash-max-res 32: finest resolution below the coarsest"),
+    ({"decode_weight": -1.0}, "--decode-weight -1.0: must be >= 0"),
+    ({"decode_weight": 1.0, "decode_cells": 2}, "--decode-cells 2: must be >= 3"),
+    ({"decode_weight": 1.0, "decode_target": "both"}, "--decode-target both: unknown"),
+    ({"decode_weight": 1.0, "decode_patches": 0}, "--decode-patches 0: must be a positive"),
 ])
 def test_a_feature_setting_that_cannot_work_is_named(change, message):
   from msnerf_jax.parallel import data_parallel  # pylint: disable=g-import-not-at-top

@@ -22,6 +22,12 @@ _HELPS = {
     "hash_max_res": "feature field: finest grid resolution",
     "top_k": "hierarchical NeRFs: the heaviest fine samples of each ray that get a feature",
     "rays_per_cell": "jittered rays averaged into one relu4_1 cell per step",
+    "decode_weight": "weight of the decodability loss: the frozen decoder paints patches of "
+                     "rendered cells, MSE to --decode-target (0 = off)",
+    "decode_target": "decodability loss: photo (the view's pixels) or encoder (the decoder's "
+                     "picture of the view's own relu4_1 cells, per-frame AdaIN at alpha 0)",
+    "decode_patches": "decodability loss: patches per step",
+    "decode_cells": "decodability loss: a patch's side in relu4_1 cells (>= 3)",
 }
 
 
@@ -90,6 +96,8 @@ def cmd_train(args):
         ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
         ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
         ("last batch", f"MSE {summary.get('mse', float('nan')):.4f}, L1 "
-                       f"{summary.get('l1', float('nan')):.4f} (relu4_1)"),
+                       f"{summary.get('l1', float('nan')):.4f} (relu4_1)"
+                       + (f"; decoded patches MSE {summary['decode']:.4f}"
+                          if "decode" in summary else "")),
         ("next", f"msnerf render --run {args.out} --style STYLE.jpg --out "
                  f"{os.path.join(args.out, 'video')}")])

@@ -1,7 +1,9 @@
 """Training a VGG feature field on a NeRF run's frozen geometry, top to bottom: the encoder's
 relu4_1 maps of the training views as targets (computed once, cached in the run), a batch of
 relu4_1 cells each averaged over jittered rays inside its 8 x 8 block, composited with the
-frozen NeRF's weights, lifted to 512 channels, L1 to the targets; Adam on the field alone."""
+frozen NeRF's weights, lifted to 512 channels, MSE (or L1) to the targets, optionally plus
+the frozen decoder's picture of patches of cells against the views' pixels (decodability);
+Adam on the field alone."""
 
 import dataclasses
 import functools
@@ -27,6 +29,7 @@ from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
 from msnerf_jax.feature_style import CELL, pooled_stats
 from msnerf_jax.files import write_npy
+from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
 from msnerf_jax.models.feature_field import FeatureFieldFn, init_feature_params
 from msnerf_jax.models.nerf import NerfField
@@ -39,6 +42,7 @@ from msnerf_jax.train import state as state_lib
 
 KIND = "features"
 LOSSES = ("mse", "l1")
+DECODE_TARGETS = ("photo", "encoder")
 FROZEN = "nerf"  # params {"nerf": the NeRF run's params, "features": {"field", "lift"}}.
 TRAINED = "features"
 TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views.
@@ -47,14 +51,19 @@ TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views
 # ----------------------------------------------------------------------------- targets
 
 
+def enlarged(view: np.ndarray, scale: int) -> np.ndarray:
+  """A view [H, W, 3] enlarged `scale` times and padded to multiples of 8, as
+  stylize.stylize_image hands it to the encoder: [8 ceil(sH/8), 8 ceil(sW/8), 3] float32."""
+  h, w = view.shape[:2]
+  return stylize_lib.pad_to_multiple(images_lib.resize(np.asarray(view, np.float32),
+                                                       h * scale, w * scale), CELL)
+
+
 def view_targets(encoder, views, scale: int, progress: bool = False) -> np.ndarray:
-  """relu4_1 of each view [H, W, 3] enlarged `scale` times and padded to multiples of 8, as
-  stylize.stylize_image encodes it: [N, ceil(sH/8), ceil(sW/8), 512] float16."""
+  """relu4_1 of each view enlarged (`enlarged`): [N, ceil(sH/8), ceil(sW/8), 512] float16."""
   out = []
   for view in progress_bar(views, desc="feature targets", disable=not progress, leave=False):
-    h, w = view.shape[:2]
-    big = stylize_lib.pad_to_multiple(images_lib.resize(np.asarray(view, np.float32),
-                                                        h * scale, w * scale), CELL)
+    big = enlarged(view, scale)
     out.append(np.asarray(encode(encoder, jnp.asarray(big[None]))["relu4_1"][0], np.float16))
   return np.stack(out)
 
@@ -154,8 +163,33 @@ def cell_features(params, rays, config: FeatureConfig):
   return fn.lift(params[TRAINED], features, acc), jnp.all(per_cell(out["complete"]), 1)
 
 
-def loss_fn(trainable, frozen, batch, config: FeatureConfig):
-  """Mean L1 between the cells' lifted features and their targets (over complete cells)."""
+def decode_loss(params, batch, config: FeatureConfig, decoder_params, upsample: str):
+  """Decodability: MSE between the frozen decoder's picture of each patch of rendered cells
+  (the lifted features as they are, alpha = 0) and config.decode_target's picture of the
+  patch, one cell's margin (the decoder's padding) left out.
+
+  batch: "patch_rays" ray_bundle [P * m * m * R] (patch, then cell, major), and "pixels"
+  [P, 8m, 8m, 3] of the enlarged views ("photo") or "patch_targets" [P, m, m, 512], their
+  encoder's cells ("encoder"), as sample_batch makes them.
+  """
+  m = config.decode_cells
+  decoder_params = jax.lax.stop_gradient(decoder_params)
+  paint = lambda cells: decoder_lib.Decoder(upsample).apply(decoder_params, cells)
+  feats, _ = cell_features(params, batch["patch_rays"], config)
+  painted = paint(feats.reshape(-1, m, m, feats.shape[-1]))
+  if config.decode_target == "photo":
+    reference = batch["pixels"].astype(jnp.float32)
+  else:
+    reference = jax.lax.stop_gradient(paint(batch["patch_targets"].astype(jnp.float32)))
+  inner = slice(CELL, CELL * (m - 1))
+  return jnp.mean(jnp.square(painted[:, inner, inner] - reference[:, inner, inner]))
+
+
+def loss_fn(trainable, frozen, batch, config: FeatureConfig, decoder_params=None,
+            upsample: str = "nearest"):
+  """MSE (or L1) between the cells' lifted features and their targets (over complete cells),
+  plus config.decode_weight x decode_loss when that is on (decoder_params: the frozen
+  decoder's, of `upsample`)."""
   params = merge(trainable, jax.lax.stop_gradient(frozen))
   pred, complete = cell_features(params, batch["rays"], config)
   diff = pred - batch["target"].astype(jnp.float32)
@@ -163,15 +197,22 @@ def loss_fn(trainable, frozen, batch, config: FeatureConfig):
   l1 = masked_mean(jnp.mean(jnp.abs(diff), -1))
   mse = masked_mean(jnp.mean(jnp.square(diff), -1))
   loss = l1 if config.loss == "l1" else mse
-  return loss, {"loss": loss, "l1": l1, "mse": mse}
+  stats = {"l1": l1, "mse": mse}
+  if config.decode_weight > 0:
+    stats["decode"] = decode_loss(params, batch, config, decoder_params, upsample)
+    loss = loss + config.decode_weight * stats["decode"]
+  return loss, {"loss": loss, **stats}
 
 
-def train_step(state: state_lib.TrainState, batch, *, config: FeatureConfig,
+def train_step(state: state_lib.TrainState, batch, decoder_params=None, *,
+               config: FeatureConfig, upsample: str = "nearest",
                axis_name: Optional[str] = None):
   """One Adam step on the feature field; the NeRF comes out bit-identical (its arrays are
-  passed through, not updated by zero)."""
+  passed through, not updated by zero). decoder_params: the frozen decoder's, read when
+  config.decode_weight > 0."""
   trainable, frozen = split_frozen(state.params)
-  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, config)
+  grads, stats = jax.grad(loss_fn, has_aux=True)(trainable, frozen, batch, config,
+                                                 decoder_params, upsample)
   if axis_name is not None:
     grads = jax.lax.pmean(grads, axis_name)
     stats = jax.lax.pmean(stats, axis_name)
@@ -180,36 +221,73 @@ def train_step(state: state_lib.TrainState, batch, *, config: FeatureConfig,
   return state.replace(params=merge(split_frozen(state.params)[0], frozen)), stats
 
 
-def compile_train_step(config: FeatureConfig, parallel: DataParallel) -> Callable:
+def compile_train_step(config: FeatureConfig, parallel: DataParallel,
+                       decoder: Optional[stylize_lib.Decoder] = None) -> Callable:
+  """The placed (state, batch) -> (state, stats) step; `decoder` (the frozen one the
+  decodability loss paints with) is needed when config.decode_weight > 0."""
+  if config.decode_weight > 0:
+    return parallel.compile(functools.partial(train_step, config=config,
+                                              upsample=decoder.config.upsample),
+                            (decoder.params,))
   return parallel.compile(functools.partial(train_step, config=config))
+
+
+def _cell_rays(key, views, rows, cols, c2w, K, config: FeatureConfig, ndc: bool, shape,
+               near: float, far: float, coeffs=None):
+  """rays_per_cell rays in each cell (views, rows, cols) [B], uniform over its 8 x 8 block of
+  the enlarged view: ray_bundle [B * R], cell-major."""
+  r, s = config.rays_per_cell, config.stylize_scale
+  u = jax.random.uniform(key, (views.shape[0], r, 2))
+  to_pixels = lambda cell, frac: (CELL * (cell[:, None] + frac)) / s - 0.5  # [B, R]
+  ray_idx = jnp.repeat(views, r)
+  origins, directions = rays_lib.pixel_rays(
+      K[ray_idx] if K.ndim == 3 else K, c2w[ray_idx], to_pixels(rows, u[..., 0]).reshape(-1),
+      to_pixels(cols, u[..., 1]).reshape(-1), None if coeffs is None else coeffs[ray_idx])
+  return rays_lib.ray_bundle(origins, directions, near, far, ndc, *shape)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "ndc", "shape"))
 def sample_batch(key, targets, c2w, K, config: FeatureConfig, ndc: bool, shape, near: float,
-                 far: float, coeffs=None):
+                 far: float, coeffs=None, pixels=None):
   """A random batch of relu4_1 cells of the training views, rays_per_cell jittered rays in
-  each (uniform over the cell's 8 x 8 block of the enlarged view).
+  each (uniform over the cell's 8 x 8 block of the enlarged view); with config.decode_weight
+  > 0 also decode_patches square patches of decode_cells x decode_cells cells, with their
+  pixels or target cells (config.decode_target).
 
   Args:
     targets: [N, h, w, 512] float16; c2w [N, 3, 4]; K [3, 3] or [N, 3, 3]; coeffs [N, 5]
-      or None; shape (H, W, focal) for NDC.
+      or None; shape (H, W, focal) for NDC; pixels: [N, 8h, 8w, 3] the enlarged views
+      (`enlarged`), read for the "photo" target.
   Returns:
-    {"rays": ray_bundle [B * R] (cell-major), "target": [B, 512] float16}.
+    {"rays": ray_bundle [B * R] (cell-major), "target": [B, 512] float16[, "patch_rays":
+    ray_bundle [P * m * m * R], and "pixels" [P, 8m, 8m, 3] or "patch_targets"
+    [P, m, m, 512]]}.
   """
   n, h, w = targets.shape[:3]
-  b, r, s = config.batch_cells, config.rays_per_cell, config.stylize_scale
+  b = config.batch_cells
   k_img, k_row, k_col, k_jit = jax.random.split(key, 4)
   idx = jax.random.randint(k_img, (b,), 0, n)
   rows = jax.random.randint(k_row, (b,), 0, h)
   cols = jax.random.randint(k_col, (b,), 0, w)
-  u = jax.random.uniform(k_jit, (b, r, 2))
-  to_pixels = lambda cell, frac: (CELL * (cell[:, None] + frac)) / s - 0.5  # [B, R]
-  ray_idx = jnp.repeat(idx, r)
-  origins, directions = rays_lib.pixel_rays(
-      K[ray_idx] if K.ndim == 3 else K, c2w[ray_idx], to_pixels(rows, u[..., 0]).reshape(-1),
-      to_pixels(cols, u[..., 1]).reshape(-1), None if coeffs is None else coeffs[ray_idx])
-  rays = rays_lib.ray_bundle(origins, directions, near, far, ndc, *shape)
-  return {"rays": rays, "target": targets[idx, rows, cols]}
+  rays_of = lambda k, v, r, c: _cell_rays(k, v, r, c, c2w, K, config, ndc, shape, near, far,
+                                          coeffs)
+  batch = {"rays": rays_of(k_jit, idx, rows, cols), "target": targets[idx, rows, cols]}
+  if config.decode_weight > 0:
+    m, p = config.decode_cells, config.decode_patches
+    k_img, k_row, k_col, k_jit = jax.random.split(jax.random.fold_in(key, 1), 4)
+    views = jax.random.randint(k_img, (p,), 0, n)
+    top = jax.random.randint(k_row, (p,), 0, h - m + 1)
+    left = jax.random.randint(k_col, (p,), 0, w - m + 1)
+    grid = lambda start, axis: jnp.broadcast_to(
+        jnp.expand_dims(start[:, None] + jnp.arange(m), axis), (p, m, m)).reshape(-1)
+    cells = (jnp.repeat(views, m * m), grid(top, 2), grid(left, 1))
+    batch["patch_rays"] = rays_of(k_jit, *cells)
+    if config.decode_target == "photo":
+      batch["pixels"] = jax.vmap(lambda v, t, l: jax.lax.dynamic_slice(
+          pixels[v], (CELL * t, CELL * l, 0), (CELL * m, CELL * m, 3)))(views, top, left)
+    else:
+      batch["patch_targets"] = targets[cells].reshape(p, m, m, targets.shape[-1])
+  return batch
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -225,6 +303,18 @@ def check_config(config: FeatureConfig, parallel: DataParallel) -> None:
       config_lib.bad_setting(config, name, "must be >= 1")
   if config.loss not in LOSSES:
     config_lib.bad_setting(config, "loss", f"unknown (choose from {', '.join(LOSSES)})")
+  if not config.decode_weight >= 0:
+    config_lib.bad_setting(config, "decode_weight", "must be >= 0")
+  if config.decode_weight > 0:
+    if config.decode_target not in DECODE_TARGETS:
+      config_lib.bad_setting(config, "decode_target",
+                             f"unknown (choose from {', '.join(DECODE_TARGETS)})")
+    if config.decode_cells < 3:
+      config_lib.bad_setting(config, "decode_cells", "must be >= 3 (a cell's margin is left "
+                                                     "out on every side)")
+    if config.decode_patches < 1 or config.decode_patches % parallel.size:
+      config_lib.bad_setting(config, "decode_patches", f"must be a positive multiple of the "
+                                                       f"{parallel.size} device(s)")
   config_lib.check_hash_settings(config)
   nerf_lib.check_batch_splits(config.batch_cells, parallel)
 
@@ -255,11 +345,15 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
   """
   check_same_nerf(run_dir, nerf_run_dir)
   nerf_run, scene, data = multistyle_lib.load_nerf_run(nerf_run_dir)
-  stylize_lib.load_decoder(decoder_dir)  # refuses another encoder's decoder, up front.
+  decoder = stylize_lib.load_decoder(decoder_dir)  # refuses another encoder's, up front.
   box = config.scene_box or nerf_run.config.scene_box or nerf_lib.scene_box(scene)
   config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
   devices = data_parallel(n_devices, parallel)
   check_config(config, devices)
+  cells = tuple(-(-n * config.stylize_scale // CELL) for n in (scene.height, scene.width))
+  if config.decode_weight > 0 and config.decode_cells > min(cells):
+    config_lib.bad_setting(config, "decode_cells", f"a patch wider than the views' "
+                                                   f"{cells[0]} x {cells[1]} relu4_1 cells")
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
             "nerf_run": os.path.abspath(nerf_run_dir), "decoder": os.path.abspath(decoder_dir)}
   distributed.check_same(record, "settings")
@@ -269,18 +363,22 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
     prepare_targets(run_dir, scene, config, progress)
   distributed.primary_first(prepare)
   train_idx = scene.split("train")
-  cells = tuple(-(-n * config.stylize_scale // CELL) for n in (scene.height, scene.width))
   targets = jnp.asarray(load_targets(run_dir, len(train_idx), cells))
+  pixels = None
+  if config.decode_weight > 0 and config.decode_target == "photo":
+    pixels = jnp.asarray(np.stack([enlarged(v, config.stylize_scale)
+                                   for v in scene.images[train_idx]]), jnp.float16)
   c2w = jnp.asarray(scene.c2w[train_idx])
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
   base_key = jax.random.PRNGKey(config.seed)
   shape = (scene.height, scene.width, scene.focal)
   summary = loop_lib.fit(
-      init_state(config, nerf_run.params), compile_train_step(config, devices),
+      init_state(config, nerf_run.params), compile_train_step(config, devices, decoder),
       lambda step: sample_batch(jax.random.fold_in(base_key, step), targets, c2w, K, config,
-                                scene.ndc, shape, scene.near, scene.far, coeffs),
+                                scene.ndc, shape, scene.near, scene.far, coeffs, pixels),
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
       keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="features train",
-      progress=progress, callback=callback, shown=("mse", "l1"))
+      progress=progress, callback=callback,
+      shown=("mse", "l1") + (("decode",) if config.decode_weight > 0 else ()))
   distributed.primary_first(write_rendered_stats, run_dir, scene, progress)
   return summary
