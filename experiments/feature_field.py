@@ -52,10 +52,8 @@ def content_loss(encoder, frames, photos, style, scale):
   """Mean over frames of AdaIN's content loss at the stylize scale (relu4_1 MSE)."""
   out = []
   s_mean, s_std = adain.channel_stats(adain.encode(encoder, jnp.asarray(style[None]))["relu4_1"])
+  big = lambda x: jnp.asarray(stylize.enlarged(x, scale)[None])
   for f, p in zip(frames, photos):
-    h, w = f.shape[:2]
-    big = lambda x: jnp.asarray(stylize.pad_to_multiple(images_lib.resize(x, h * scale,
-                                                                           w * scale))[None])
     target = adain.adain_from_stats(adain.encode(encoder, big(p))["relu4_1"], s_mean, s_std)
     out.append(float(jnp.mean(jnp.square(adain.encode(encoder, big(f))["relu4_1"] - target))))
   return float(np.mean(out))
@@ -112,7 +110,7 @@ def main():
   nerf = load_run(run.record["nerf_run"], "nerf")
   decoder_dir = args.decoder or run.record["decoder"]
   decoder = stylize.load_decoder(decoder_dir)
-  encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
+  encoder = vgg.load_vgg_params()
   stats = content_stats(run) if args.stats == "rendered" else tuple(
       np.load(os.path.join(args.features, CONTENT_STATS)))
   scale = run.config.stylize_scale
@@ -133,6 +131,7 @@ def main():
     return
   if not args.styles:
     parser.error("--styles: required (unless --only-alpha0)")
+  lpips_params = metrics.load_lpips_params()
   lp = lambda a, b: np.asarray(metrics.lpips(lpips_params, jnp.asarray(a), jnp.asarray(b)))
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, args.frames)
                              .round().astype(int)]

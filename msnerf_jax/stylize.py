@@ -158,9 +158,7 @@ def scene_content_stats(encoder_params: Any, views: Sequence[np.ndarray], scale:
   sums = squares = 0.0
   count = 0
   for view in progress_bar(views, desc="scene statistics", disable=not progress, leave=False):
-    h, w = view.shape[:2]
-    big = pad_to_multiple(images_lib.resize(np.asarray(view, np.float32), h * scale, w * scale))
-    s, q, n = _relu4_1_sums(encoder_params, jnp.asarray(big[None]))
+    s, q, n = _relu4_1_sums(encoder_params, jnp.asarray(enlarged(view, scale)[None]))
     sums = sums + np.asarray(s, np.float64)
     squares = squares + np.asarray(q, np.float64)
     count += int(n)
@@ -177,6 +175,13 @@ def pad_to_multiple(image: np.ndarray, multiple: int = 8) -> np.ndarray:
   if ph == 0 and pw == 0:
     return image
   return np.pad(image, ((0, ph), (0, pw), (0, 0)), mode="reflect" if min(h, w) > max(ph, pw) else "edge")
+
+
+def enlarged(view: np.ndarray, scale: int) -> np.ndarray:
+  """A view [H, W, 3] enlarged `scale` times and padded to multiples of 8, as stylize_image
+  hands it to the encoder: [8 ceil(sH/8), 8 ceil(sW/8), 3] float32."""
+  h, w = view.shape[:2]
+  return pad_to_multiple(images_lib.resize(np.asarray(view, np.float32), h * scale, w * scale))
 
 
 def stylize_image(decoder: Decoder, encoder_params: Any, content: np.ndarray,

@@ -194,7 +194,7 @@ def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alon
                                decode_cells=3)
   targets = jnp.asarray(np.load(os.path.join(feature_world["run"], features.TARGETS)))
   views = scene.images[scene.split("train")]
-  big = np.stack([features.enlarged(v, 2) for v in views])  # [4, 32, 32, 3]
+  big = np.stack([stylize.enlarged(v, 2) for v in views])  # [4, 32, 32, 3]
   args = (jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, False,
           (scene.height, scene.width, scene.focal), scene.near, scene.far, None,
           jnp.asarray(big, jnp.float16))
@@ -372,7 +372,7 @@ TWO_DEVICES = textwrap.dedent("""
                                  decode_weight={decode_weight!r}, decode_cells=3)
     decoder = stylize.load_decoder({decoder!r})
     targets = jnp.asarray(np.load({targets!r}))
-    pixels = jnp.asarray(np.stack([features.enlarged(v, 2) for v in scene.images[:4]]),
+    pixels = jnp.asarray(np.stack([stylize.enlarged(v, 2) for v in scene.images[:4]]),
                          jnp.float16)
     def run(dp):
       state = dp.put_state(features.init_state(config, source.params))

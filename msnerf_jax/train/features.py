@@ -27,7 +27,7 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.images import read_npy
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.errors import UserError
-from msnerf_jax.feature_style import CELL, pooled_stats
+from msnerf_jax.feature_style import CELL, painted_size, pooled_stats
 from msnerf_jax.files import write_npy
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
@@ -51,19 +51,12 @@ TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views
 # ----------------------------------------------------------------------------- targets
 
 
-def enlarged(view: np.ndarray, scale: int) -> np.ndarray:
-  """A view [H, W, 3] enlarged `scale` times and padded to multiples of 8, as
-  stylize.stylize_image hands it to the encoder: [8 ceil(sH/8), 8 ceil(sW/8), 3] float32."""
-  h, w = view.shape[:2]
-  return stylize_lib.pad_to_multiple(images_lib.resize(np.asarray(view, np.float32),
-                                                       h * scale, w * scale), CELL)
-
-
 def view_targets(encoder, views, scale: int, progress: bool = False) -> np.ndarray:
-  """relu4_1 of each view enlarged (`enlarged`): [N, ceil(sH/8), ceil(sW/8), 512] float16."""
+  """relu4_1 of each view enlarged (stylize.enlarged): [N, ceil(sH/8), ceil(sW/8), 512]
+  float16."""
   out = []
   for view in progress_bar(views, desc="feature targets", disable=not progress, leave=False):
-    big = enlarged(view, scale)
+    big = stylize_lib.enlarged(view, scale)
     out.append(np.asarray(encode(encoder, jnp.asarray(big[None]))["relu4_1"][0], np.float16))
   return np.stack(out)
 
@@ -257,7 +250,7 @@ def sample_batch(key, targets, c2w, K, config: FeatureConfig, ndc: bool, shape, 
   Args:
     targets: [N, h, w, 512] float16; c2w [N, 3, 4]; K [3, 3] or [N, 3, 3]; coeffs [N, 5]
       or None; shape (H, W, focal) for NDC; pixels: [N, 8h, 8w, 3] the enlarged views
-      (`enlarged`), read for the "photo" target.
+      (stylize.enlarged), read for the "photo" target.
   Returns:
     {"rays": ray_bundle [B * R] (cell-major), "target": [B, 512] float16[, "patch_rays":
     ray_bundle [P * m * m * R], and "pixels" [P, 8m, 8m, 3] or "patch_targets"
@@ -350,7 +343,7 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
   config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
   devices = data_parallel(n_devices, parallel)
   check_config(config, devices)
-  cells = tuple(-(-n * config.stylize_scale // CELL) for n in (scene.height, scene.width))
+  cells = tuple(n // CELL for n in painted_size(scene.height, scene.width, config.stylize_scale))
   if config.decode_weight > 0 and config.decode_cells > min(cells):
     config_lib.bad_setting(config, "decode_cells", f"a patch wider than the views' "
                                                    f"{cells[0]} x {cells[1]} relu4_1 cells")
@@ -366,7 +359,7 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
   targets = jnp.asarray(load_targets(run_dir, len(train_idx), cells))
   pixels = None
   if config.decode_weight > 0 and config.decode_target == "photo":
-    pixels = jnp.asarray(np.stack([enlarged(v, config.stylize_scale)
+    pixels = jnp.asarray(np.stack([stylize_lib.enlarged(v, config.stylize_scale)
                                    for v in scene.images[train_idx]]), jnp.float16)
   c2w = jnp.asarray(scene.c2w[train_idx])
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
