@@ -7,9 +7,9 @@ def load_run(run_dir, kind=None):
   """Loads a saved run (config, latest params, step) without the CLI; `kind` ("nerf",
   "adain" or "multistyle") refuses a run of another kind.
 
-  See `msnerf_jax.runs.load_run`.
+  See `msnerf_jax.kinds.runs.load_run`.
   """
-  from msnerf_jax.runs import load_run as _load_run
+  from msnerf_jax.kinds.runs import load_run as _load_run
   return _load_run(run_dir, kind)
 
 

@@ -55,9 +55,9 @@ def fake_decoder(path):
   """An AdaIN run folder with an untrained decoder: enough to exercise the plumbing."""
   # pylint: disable=g-import-not-at-top
   import jax
-  from msnerf_jax import checkpoint
-  from msnerf_jax import config as config_lib
-  from msnerf_jax import runs
+  from msnerf_jax.core import checkpoint
+  from msnerf_jax.core import config as config_lib
+  from msnerf_jax.kinds import runs
   from msnerf_jax.models import decoder
   runs.prepare_run_dir(str(path), "adain",
                              {"config": config_lib.to_dict(config_lib.AdainConfig())})
@@ -70,9 +70,9 @@ def fake_decoder(path):
 def untrained_nerf_run(run_dir, data, config, step=2):
   """A NeRF run folder as `nerf train` leaves it, with untrained params (no step compiled)."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import checkpoint
-  from msnerf_jax import config as config_lib
-  from msnerf_jax import runs
+  from msnerf_jax.core import checkpoint
+  from msnerf_jax.core import config as config_lib
+  from msnerf_jax.kinds import runs
   from msnerf_jax.train import nerf
   from msnerf_jax.train import state as state_lib
   runs.prepare_run_dir(run_dir, "nerf", {"config": config_lib.to_dict(config),

@@ -63,7 +63,9 @@ def main():
   no_estimate = "--no-estimate" in rest[: rest.index("--")]
   argv = rest[rest.index("--") + 1:]
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import checkpoint, cli, video
+  from msnerf_jax import cli
+  from msnerf_jax.core import checkpoint
+  from msnerf_jax.data import video
   from msnerf_jax.data import images
   from msnerf_jax.train import loop
   if no_estimate:

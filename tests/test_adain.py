@@ -5,9 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from msnerf_jax import adain
-from msnerf_jax import styles as styles_lib
-from msnerf_jax import stylize
+from msnerf_jax.style import adain
+from msnerf_jax.style import vectors as styles_lib
+from msnerf_jax.style import transfer as stylize
 from msnerf_jax.models import vgg
 
 

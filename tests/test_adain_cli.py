@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, runs
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import checkpoint
+from msnerf_jax.kinds import runs
+from msnerf_jax.core import config as config_lib
 from msnerf_jax.models import decoder
 
 

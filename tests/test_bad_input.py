@@ -20,13 +20,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli, runs
-from msnerf_jax import config as config_lib
-from msnerf_jax.config import DataConfig
+from msnerf_jax import cli
+from msnerf_jax.core import checkpoint
+from msnerf_jax.kinds import runs
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import stylized as stylized_lib
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.train import nerf
 from msnerf_jax.train import state as state_lib
 
@@ -725,7 +727,7 @@ class _Evil:
 
 def test_weights_unpickler_runs_no_code(tmp_path):
   import pickle  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.errors import UserError  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   marker, path = tmp_path / "pwned", tmp_path / "weights.ckpt"
   path.write_bytes(pickle.dumps({"params": _Evil(str(marker))}))

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import cameras, cli
-from msnerf_jax import rays as rays_lib
-from msnerf_jax.config import DataConfig
+from msnerf_jax import cli
+from msnerf_jax.nerf import cameras
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data import camera_path, captures, colmap
 from msnerf_jax.data.scene import load_scene
 

@@ -8,7 +8,7 @@ import os
 import pytest
 
 from msnerf_jax import cli
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
 from test_cli_nerf import assert_one_line_error, msnerf
 
 
@@ -107,7 +107,7 @@ def test_given_options_are_what_the_command_line_sets():
 ])
 def test_config_file_keeps_what_the_command_line_does_not_set(kind, argv, field, value,
                                                              tmp_path):
-  from msnerf_jax import runs  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli.config_args import given_options, start_config  # pylint: disable=g-import-not-at-top
   cls = config_lib.config_class(kind)
   saved = dataclasses.replace(cls(), steps=7, seed=5)

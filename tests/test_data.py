@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax.config import DataConfig
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 
 @pytest.mark.integration

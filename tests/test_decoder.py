@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import runs
-from msnerf_jax import config as config_lib
-from msnerf_jax.errors import UserError
+from msnerf_jax.kinds import runs
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import decoder
 from msnerf_jax.train import adain as train_adain
 
@@ -200,7 +200,7 @@ def test_window_is_the_moved_crop():
 
 def test_shift_loss_compares_the_moved_decode_with_the_same_window():
   """shift_loss against its definition written out with numpy slices, for two shifts."""
-  from msnerf_jax import adain as adain_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import adain as adain_lib  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   enc = vgg.load_vgg_params()
   params = decoder.init_decoder(jax.random.PRNGKey(0))

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import cli, demo
-from msnerf_jax.config import DataConfig
+from msnerf_jax import cli
+from msnerf_jax.pipeline import demo
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 
 TINY = ["--size", "16", "--views", "4", "--adain-steps", "2", "--adain-size", "16",

@@ -140,8 +140,10 @@ def test_a_killed_pair_resumes_from_the_last_checkpoint(inputs, tmp_path):
 RENDER = textwrap.dedent("""
     import sys
     import numpy as np
-    from msnerf_jax import distributed, parallel, runs
-    from msnerf_jax.views import render_view
+    from msnerf_jax.core import distributed
+    from msnerf_jax.core import parallel
+    from msnerf_jax.kinds import runs
+    from msnerf_jax.kinds.views import render_view
     port, pid, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
     distributed.initialize("127.0.0.1:" + port, 2, pid, timeout=60)
     run, scene = runs.load_run_and_scene({run!r}, "nerf")
@@ -229,8 +231,8 @@ def test_bad_process_settings_end_with_one_line(inputs, tmp_path):
 
 def test_device_counts_and_modes_that_cannot_work_are_one_line(tiny_blender, tmp_path, capsys):
   from msnerf_jax import cli  # pylint: disable=g-import-not-at-top
-  from msnerf_jax import parallel  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core import parallel  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.errors import UserError  # pylint: disable=g-import-not-at-top
   import jax  # pylint: disable=g-import-not-at-top
   have = jax.local_device_count()
   with pytest.raises(UserError, match=f"{have + 1} devices asked for; this machine has {have}"):

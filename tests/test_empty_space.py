@@ -11,12 +11,16 @@ import pytest
 from PIL import Image
 
 import msnerf_jax
-from msnerf_jax import config as config_lib
-from msnerf_jax import demo, evaluate, metrics, occupancy, regularizers
-from msnerf_jax import render as render_lib
-from msnerf_jax.config import DataConfig
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.pipeline import demo
+from msnerf_jax.eval import evaluate
+from msnerf_jax.eval import metrics
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf import regularizers
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.train import nerf
 from test_cli_nerf import assert_one_line_error, msnerf

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.encoding import encoded_size, positional_encoding
+from msnerf_jax.nerf.encoding import encoded_size, positional_encoding
 
 
 def test_shape_and_order():

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 import msnerf_jax
-from msnerf_jax import occupancy
-from msnerf_jax import render as render_lib
-from msnerf_jax.config import DataConfig, NerfConfig, check_nerf_config, nerf_preset
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core.config import DataConfig, NerfConfig, check_nerf_config, nerf_preset
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
-from msnerf_jax.hash_encoding import hash_encode, level_resolutions
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.nerf.hash_encoding import hash_encode, level_resolutions
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from msnerf_jax.train import nerf
-from msnerf_jax.volume_rendering import volume_render, volume_render_packed
+from msnerf_jax.nerf.volume_rendering import volume_render, volume_render_packed
 
 # A small fast-preset config for the tiny synthetic scene (16x16 views, box of half side 1.5).
 TINY_FAST = dataclasses.replace(
@@ -201,9 +201,9 @@ TWO_DEVICES = textwrap.dedent("""
     import os, sys
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     import dataclasses, jax, numpy as np, jax.numpy as jnp
-    from msnerf_jax.config import DataConfig
+    from msnerf_jax.core.config import DataConfig
     from msnerf_jax.data.scene import load_scene
-    from msnerf_jax.parallel import data_parallel
+    from msnerf_jax.core.parallel import data_parallel
     from msnerf_jax.train import nerf
     sys.path.insert(0, {tests!r})
     from test_fast_trunk import TINY_FAST
@@ -308,7 +308,7 @@ def test_fast_training_lowers_the_loss_and_carves_the_grid(fast_world):
 
 
 def test_multistyle_on_the_hash_trunk_keeps_trunk_and_grid_bit_identical(fast_world):
-  from msnerf_jax import checkpoint  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core import checkpoint  # pylint: disable=g-import-not-at-top
   run, nerf_run = msnerf_jax.load_run(fast_world["run"]), msnerf_jax.load_run(fast_world["nerf"])
   assert set(run.params) == {"fine", "occupancy"}
   frozen = {"trunk": run.params["fine"]["trunk"], "grid": run.params["occupancy"]}
@@ -324,7 +324,8 @@ def test_multistyle_on_the_hash_trunk_keeps_trunk_and_grid_bit_identical(fast_wo
 
 
 def test_multistyle_sweep_on_the_grid_equals_single_renders(fast_world):
-  from msnerf_jax import runs, views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views
   run = msnerf_jax.load_run(fast_world["run"])
   vectors = runs.style_vectors(run)
   styles = np.stack([vectors["red"], vectors["blue"]])

@@ -17,11 +17,12 @@ import pytest
 
 import msnerf_jax
 from msnerf_jax import cli
-from msnerf_jax import runs
-from msnerf_jax.config import DataConfig, FeatureConfig
+from msnerf_jax.kinds import stylized_scenes
+from msnerf_jax.kinds import runs
+from msnerf_jax.core.config import DataConfig, FeatureConfig
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
-from msnerf_jax.feature_style import (cell_grid, pooled_stats, style_vector_of_stats,
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.style.features import (cell_grid, pooled_stats, style_vector_of_stats,
                                      stylize_features)
 from msnerf_jax.train import features
 from msnerf_jax.train import nerf
@@ -120,7 +121,7 @@ def feature_world(tmp_path_factory):
 
 
 def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(feature_world):
-  from msnerf_jax import checkpoint  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core import checkpoint  # pylint: disable=g-import-not-at-top
   run = msnerf_jax.load_run(feature_world["run"])
   source = msnerf_jax.load_run(feature_world["nerf"])
   assert run.kind == "features" and set(run.params) == {"nerf", "features"}
@@ -145,7 +146,7 @@ def test_targets_are_cached_and_the_content_stats_pooled_over_the_fields_renders
   want = pooled_stats(list(targets.astype(np.float32)))
   np.testing.assert_allclose(encoded, np.stack(want), rtol=1e-4, atol=1e-5)
   # Stylizing normalises by the trained field's own renders of the training views.
-  from msnerf_jax import views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views  # pylint: disable=g-import-not-at-top
   run, scene = msnerf_jax.load_run(run_dir), feature_world["scene"]
   mean, std = runs.content_stats(run)
   maps = [views.render_feature_map(scene, run.params, run.config, int(i))["features"]
@@ -185,10 +186,10 @@ def test_training_lowers_the_loss_on_a_fixed_batch(feature_world, sampler):
 @pytest.mark.parametrize("target", ["photo", "encoder"])
 def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alone(
     feature_world, target):
-  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
   scene = feature_world["scene"]
   source = msnerf_jax.load_run(feature_world["nerf"])
-  decoder = stylize.load_decoder(feature_world["decoder"])
+  decoder = stylized_scenes.load_decoder(feature_world["decoder"])
   config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5,
                                decode_weight=1.0, decode_target=target, decode_patches=2,
                                decode_cells=3)
@@ -237,11 +238,12 @@ def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alon
 
 def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_features(
     feature_world):
-  from msnerf_jax import stylize, views  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.feature_style import decode_styles  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views
+  from msnerf_jax.style.features import decode_styles  # pylint: disable=g-import-not-at-top
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
-  decoder = stylize.load_decoder(feature_world["decoder"])
+  decoder = stylized_scenes.load_decoder(feature_world["decoder"])
   stats = runs.content_stats(run)
   rng = np.random.default_rng(3)
   styles = np.concatenate([rng.uniform(0, 2, (3, 512)), rng.uniform(0.5, 2, (3, 512))], 1)
@@ -270,10 +272,12 @@ def test_frames_averaged_over_four_cell_grids_follow_half_cell_shifts_exactly(fe
   grids moved (one of them by a whole cell, to which the decoder is equivariant), so away
   from the borders its frame is the first frame moved, which one grid is not."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import cameras, stylize, views
+  from msnerf_jax.nerf import cameras
+  from msnerf_jax.style import transfer as stylize
+  from msnerf_jax.kinds import views
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
-  decoder = stylize.load_decoder(feature_world["decoder"])
+  decoder = stylized_scenes.load_decoder(feature_world["decoder"])
   stats = runs.content_stats(run)
   style = np.concatenate([np.full(512, 0.5), np.full(512, 1.5)]).astype(np.float32)
   size, shift = 64, 2  # half a cell: 4 pixels of the view enlarged 2x.
@@ -303,10 +307,12 @@ def test_msnerf_render_paints_a_feature_run_in_any_style_image(feature_world, tm
 
 def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dataset(
     feature_world, tmp_path, capsys):
-  from msnerf_jax import stylize, views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.images import read_image
-  from msnerf_jax.data.stylized import load_stylized, style_vector_of
+  from msnerf_jax.data.stylized import load_stylized
+  from msnerf_jax.style.vectors import style_vector_of
   from msnerf_jax.models.vgg import load_vgg_params
   style = write_style(tmp_path / "red.png", (200, 30, 30))
   out = str(tmp_path / "stylized")
@@ -324,7 +330,7 @@ def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dat
   red = style_vector_of(load_vgg_params(), read_image(style), (32, 32))
   vector = 0.5 * style_vector_of_stats(stats) + 0.5 * np.asarray(red)
   want = views.render_feature_styles(scene, run.params, run.config, 5,
-                                     stylize.load_decoder(feature_world["decoder"]), stats,
+                                     stylized_scenes.load_decoder(feature_world["decoder"]), stats,
                                      vector[None])[0]
   a = scene.alphas[5][..., None] / 255.0
   want = want * a + (1 - a)
@@ -359,10 +365,11 @@ TWO_DEVICES = textwrap.dedent("""
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     import dataclasses, jax, numpy as np, jax.numpy as jnp
     import msnerf_jax
-    from msnerf_jax.config import DataConfig
+    from msnerf_jax.core.config import DataConfig
     from msnerf_jax.data.scene import load_scene
-    from msnerf_jax import stylize
-    from msnerf_jax.parallel import data_parallel
+    from msnerf_jax.style import transfer as stylize
+    from msnerf_jax.kinds import stylized_scenes
+    from msnerf_jax.core.parallel import data_parallel
     from msnerf_jax.train import features
     sys.path.insert(0, {tests!r})
     from test_feature_field import TINY_FEATURES
@@ -370,7 +377,7 @@ TWO_DEVICES = textwrap.dedent("""
     source = msnerf_jax.load_run({nerf!r})
     config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5,
                                  decode_weight={decode_weight!r}, decode_cells=3)
-    decoder = stylize.load_decoder({decoder!r})
+    decoder = stylized_scenes.load_decoder({decoder!r})
     targets = jnp.asarray(np.load({targets!r}))
     pixels = jnp.asarray(np.stack([stylize.enlarged(v, 2) for v in scene.images[:4]]),
                          jnp.float16)
@@ -448,7 +455,7 @@ def test_a_decodability_patch_wider_than_the_views_is_refused_before_writing(
     ({"decode_weight": 1.0, "decode_patches": 0}, "--decode-patches 0: must be a positive"),
 ])
 def test_a_feature_setting_that_cannot_work_is_named(change, message):
-  from msnerf_jax.parallel import data_parallel  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.parallel import data_parallel  # pylint: disable=g-import-not-at-top
   with pytest.raises(UserError, match=message):
     features.check_config(dataclasses.replace(TINY_FEATURES, **change), data_parallel(1))
 
@@ -469,8 +476,9 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   views normalised by its content statistics, so AdaIN of a crop towards a style is what
   stylize_features hands the decoder at render time; photo and feature crops share a batch
   (the loss is the mean of the two halves'); a resumed run ends bit-identical."""
-  from msnerf_jax import adain, views  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.config import AdainConfig  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import adain  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views
+  from msnerf_jax.core.config import AdainConfig  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain  # pylint: disable=g-import-not-at-top
   styles = _styles_folder(tmp_path / "styles")
@@ -528,7 +536,7 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
 ])
 def test_feature_content_that_cannot_work_is_refused_before_writing(feature_world, tmp_path,
                                                                     change, args, message):
-  from msnerf_jax.config import AdainConfig  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.config import AdainConfig  # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain  # pylint: disable=g-import-not-at-top
   styles = _styles_folder(tmp_path / "styles")
   change = {k: feature_world["nerf"] if v == "NERF" else v for k, v in change.items()}
@@ -573,7 +581,8 @@ def test_bad_style_images_and_decoders_get_one_line(feature_world, tmp_path, cap
 
 def test_evaluation_frames_of_a_feature_run_follow_its_style_and_white_background(
     feature_world, tmp_path):
-  from msnerf_jax import evaluate, views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.eval import evaluate  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   run = msnerf_jax.load_run(feature_world["run"])
   nerf_run = msnerf_jax.load_run(feature_world["nerf"])

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import msnerf_jax
-from msnerf_jax.config import DataConfig
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.models import decoder
 
@@ -33,7 +33,7 @@ from conftest import flat_params, trainer_env, untrained_nerf_run, write_blender
 from test_bad_input import write_style, write_stylized
 from test_train_nerf import TINY
 
-# Progress off a terminal: "nerf train: 12/120 (10%) 3s loss=..." lines (msnerf_jax.progress).
+# Progress off a terminal: "nerf train: 12/120 (10%) 3s loss=..." lines (msnerf_jax.core.progress).
 PROGRESS = re.compile(r"(?:nerf train|multistyle train|adain): [^\r\n]*?(\d+)/(\d+) \(")
 
 

@@ -96,7 +96,36 @@ def inside(module, package):
 def test_only_the_cli_and_the_pipeline_import_the_trainers():
   train = "msnerf_jax.train"
   allowed = lambda m: (inside(m, "msnerf_jax.cli") or inside(m, train)
-                       or m == "msnerf_jax.pipeline")
+                       or m == "msnerf_jax.pipeline.stages")
   offenders = {m: sorted(d for d in deps if inside(d, train))
                for m, deps in import_graph().items() if not allowed(m)}
   assert {m: d for m, d in offenders.items() if d} == {}
+
+
+# The layers, bottom to top: a module may import its own layer and the layers below it.
+LAYERS = ("core", "nerf", "models", "data", "style", "kinds", "eval", "train", "pipeline",
+          "viewer", "cli")
+
+
+def layer_of(module):
+  """The index in LAYERS of a module of the package (None: the top-level package)."""
+  parts = module.split(".")
+  return LAYERS.index(parts[1]) if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_every_module_sits_in_a_layer():
+  loose = [m for m in modules() if layer_of(m) is None
+           and m not in ("msnerf_jax", "msnerf_jax.__main__")]
+  assert loose == []
+
+
+def test_no_import_runs_upward():
+  upward = {}
+  for module, deps in import_graph().items():
+    here = layer_of(module)
+    if here is None:  # the top-level package re-exports the public surface.
+      continue
+    above = sorted(d for d in deps if layer_of(d) is not None and layer_of(d) > here)
+    if above:
+      upward[module] = above
+  assert upward == {}

@@ -25,8 +25,8 @@ import pytest
 from conftest import fake_decoder, flat_params, trainer_env, write_blender_scene
 from fault_injection import file_hashes as hashes
 
-from msnerf_jax import files
-from msnerf_jax.errors import UserError
+from msnerf_jax.core import files
+from msnerf_jax.core.errors import UserError
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TRAIN = ["--preset", "cpu", "--batch-rays", "64", "--n-coarse", "8", "--n-fine", "8",
@@ -190,7 +190,7 @@ def test_free_space_check_refuses_up_front(tmp_path):
 
 
 def test_line_progress_off_a_terminal(tmp_path):
-  from msnerf_jax.progress import progress_bar  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.progress import progress_bar  # pylint: disable=g-import-not-at-top
   with open(tmp_path / "log", "w") as log:
     bar = progress_bar(range(5, 105), initial=5, total=105, desc="nerf train", file=log)
     for i in bar:
@@ -233,7 +233,7 @@ def test_disk_fills_during_a_checkpoint_then_resume_is_bit_identical(disk, scene
   assert f"{run}/checkpoints/8: " in line
   before = json.load(open(tmp_path / "before.json"))
   assert any(k.startswith("run/checkpoints/4/") for k in before)
-  # The trainer's own lock (msnerf_jax.run_lock) was there while it ran, and is gone now.
+  # The trainer's own lock (msnerf_jax.core.run_lock) was there while it ran, and is gone now.
   assert before.pop("run/trainer.lock", None) is not None
   assert hashes(str(disk)) == before  # checkpoint 4, run.json ...: byte-identical
   assert not temporaries(str(disk))
@@ -271,7 +271,7 @@ def test_disk_fills_during_a_stylized_dataset(disk, scene, env, tmp_path):
 
 def test_disk_full_while_writing_videos(disk, scene, env, tmp_path):
   from conftest import untrained_nerf_run  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.config import DataConfig, nerf_preset  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.config import DataConfig, nerf_preset  # pylint: disable=g-import-not-at-top
   import dataclasses  # pylint: disable=g-import-not-at-top
   run = str(tmp_path / "run")
   config = dataclasses.replace(nerf_preset("cpu", "blender"), net_width=32, n_coarse=8,

@@ -5,7 +5,8 @@ import numpy as np
 import jax.numpy as jnp
 import pytest
 
-from msnerf_jax import consistency, metrics
+from msnerf_jax.eval import consistency
+from msnerf_jax.eval import metrics
 from msnerf_jax.models import vgg
 
 

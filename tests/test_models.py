@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.config import nerf_preset
+from msnerf_jax.core.config import nerf_preset
 from msnerf_jax.models.nerf import init_nerf_params, mlp_flops_per_sample, nerf_mlp
 
 

@@ -14,8 +14,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from msnerf_jax import checkpoint, cli, load_run, runs, views
-from msnerf_jax.config import DataConfig
+from msnerf_jax import cli, load_run
+from msnerf_jax.kinds import stylized_scenes
+from msnerf_jax.core import checkpoint
+from msnerf_jax.kinds import runs
+from msnerf_jax.kinds import views
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP, MultistyleField
@@ -148,7 +152,7 @@ def test_stylized_dataset_layout_and_continuation(world, capsys):
 
 
 def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, capsys):
-  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
   from msnerf_jax.data import images  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   out = str(tmp_path / "fine")
@@ -160,7 +164,7 @@ def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, 
   assert data.images.shape == (1, 6, 16, 16, 3)
   # Each view is the 32x32 stylization of the enlarged view, box-averaged back to 16x16.
   view = world["scene"].images[3]
-  decoder = stylize.load_decoder(world["decoder"])
+  decoder = stylized_scenes.load_decoder(world["decoder"])
   picture = images.read_image(world["styles"][0])
   big = stylize.stylize_image(decoder, vgg.load_vgg_params(), images.resize(view, 32, 32),
                               [picture])
@@ -193,7 +197,7 @@ def test_stylize_scale_stylizes_enlarged_views_and_is_recorded(world, tmp_path, 
 
 
 def test_scene_stats_normalise_every_view_by_the_training_views(world, tmp_path, capsys):
-  from msnerf_jax import stylize  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
   from msnerf_jax.data import images  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   out = str(tmp_path / "scene")
@@ -206,7 +210,7 @@ def test_scene_stats_normalise_every_view_by_the_training_views(world, tmp_path,
   saved = np.load(os.path.join(out, "content_stats.npy"))
   np.testing.assert_allclose(saved, np.concatenate([mean, std]), rtol=1e-6)
   # A val view (not among the views the statistics come from) is stylized with them.
-  decoder, picture = stylize.load_decoder(world["decoder"]), images.read_image(world["styles"][0])
+  decoder, picture = stylized_scenes.load_decoder(world["decoder"]), images.read_image(world["styles"][0])
   view, a = scene.images[5], scene.alphas[5][..., None] / 255.0
   want = stylize.stylize_image(decoder, encoder, view, [picture], scale=2,
                                content_stats=(mean, std)) * a + (1 - a)
@@ -252,7 +256,7 @@ def test_trunk_is_frozen_and_heads_train(world, trained):
 
 
 def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
-  from msnerf_jax.styles import blend  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style.vectors import blend  # pylint: disable=g-import-not-at-top
   run, scene = load_run(trained), world["scene"]
   vectors = runs.style_vectors(run)
   a, b = vectors["red"], vectors["blue"]
@@ -392,8 +396,8 @@ TWO_DEVICES = textwrap.dedent("""
     from msnerf_jax import load_run
     from msnerf_jax.data.scene import load_scene
     from msnerf_jax.data.stylized import load_stylized
-    from msnerf_jax.config import DataConfig, MultistyleConfig
-    from msnerf_jax.parallel import data_parallel
+    from msnerf_jax.core.config import DataConfig, MultistyleConfig
+    from msnerf_jax.core.parallel import data_parallel
     from msnerf_jax.train import multistyle as ms
     assert jax.local_device_count() == 2
     nerf_run = load_run({nerf!r})

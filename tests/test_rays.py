@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import rays
+from msnerf_jax.nerf import rays
 
 
 def reference_get_rays(H, W, K, c2w):

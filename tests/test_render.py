@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from msnerf_jax import rays as rays_lib
-from msnerf_jax import render
-from msnerf_jax.config import MultistyleConfig
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.nerf import render
+from msnerf_jax.core.config import MultistyleConfig
 from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from test_train_nerf import TINY

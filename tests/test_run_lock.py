@@ -1,4 +1,4 @@
-"""One trainer per run folder (msnerf_jax.run_lock): a second trainer is refused with one line
+"""One trainer per run folder (msnerf_jax.core.run_lock): a second trainer is refused with one line
 naming the running one and writes nothing; the lock of a process that is gone is taken over."""
 
 import json
@@ -10,9 +10,9 @@ import sys
 import pytest
 
 from msnerf_jax import cli
-from msnerf_jax import config as config_lib
-from msnerf_jax import run_lock
-from msnerf_jax import runs
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.kinds import runs
 
 from conftest import write_blender_scene
 
@@ -102,7 +102,7 @@ def test_trainers_release_the_lock_when_they_fail(tmp_path):
   """A trainer that stops with an error after taking the lock leaves no lock behind."""
   import dataclasses  # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.scene import load_scene  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.errors import UserError  # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import nerf  # pylint: disable=g-import-not-at-top
   scene_dir = write_blender_scene(str(tmp_path / "scene"), n_train=2, n_val=1, size=8)
   scene, data = load_scene(config_lib.DataConfig(path=scene_dir))

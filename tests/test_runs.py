@@ -1,13 +1,13 @@
-"""Run folders (msnerf_jax.runs): saved settings from earlier versions still load."""
+"""Run folders (msnerf_jax.kinds.runs): saved settings from earlier versions still load."""
 
 import json
 import os
 
 import pytest
 
-from msnerf_jax import config as config_lib
-from msnerf_jax import runs
-from msnerf_jax.errors import UserError
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import runs
+from msnerf_jax.core.errors import UserError
 
 
 def _nerf_record(data):

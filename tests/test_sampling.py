@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.sampling import sample_pdf, stratified_samples
+from msnerf_jax.nerf.sampling import sample_pdf, stratified_samples
 
 
 def reference_sample_pdf(bins, weights, n, u):

@@ -1,10 +1,10 @@
-"""Styles at render time (msnerf_jax.styles): choosing, blending and morphing style vectors."""
+"""Styles at render time (msnerf_jax.style.vectors): choosing, blending and morphing style vectors."""
 
 import numpy as np
 import pytest
 
-from msnerf_jax import styles
-from msnerf_jax.errors import UserError
+from msnerf_jax.style import vectors as styles
+from msnerf_jax.core.errors import UserError
 
 RNG = np.random.default_rng(0)
 VECTORS = {name: RNG.normal(size=1024).astype(np.float32) for name in ("a", "b", "original")}

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import msnerf_jax
-from msnerf_jax.config import DataConfig, NerfConfig
+from msnerf_jax.core.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.errors import UserError
-from msnerf_jax.parallel import data_parallel
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.parallel import data_parallel
 from msnerf_jax.train import nerf
 
 TINY = NerfConfig(net_depth=2, net_width=32, skip_layer=0, pos_freqs=4, dir_freqs=2,
@@ -74,7 +74,8 @@ def test_run_dir_of_another_config_is_refused_and_kept(tiny_blender, tmp_path):
 
 
 def test_run_json_from_before_a_config_field_existed_resumes(tmp_path):
-  from msnerf_jax import config as config_lib, runs  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core import config as config_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs
   import json  # pylint: disable=g-import-not-at-top
   run = str(tmp_path / "run")
   full = config_lib.to_dict(config_lib.MultistyleConfig(steps=5))
@@ -108,9 +109,9 @@ TWO_DEVICES = textwrap.dedent("""
     import os, sys
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     import jax, numpy as np
-    from msnerf_jax.config import DataConfig
+    from msnerf_jax.core.config import DataConfig
     from msnerf_jax.data.scene import load_scene
-    from msnerf_jax.parallel import data_parallel
+    from msnerf_jax.core.parallel import data_parallel
     from msnerf_jax.train import nerf
     sys.path.insert(0, {tests!r})
     from test_train_nerf import TINY

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import vgg
 
 

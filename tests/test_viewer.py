@@ -20,11 +20,12 @@ from PIL import Image
 pytest.importorskip("viser")
 
 # pylint: disable=g-import-not-at-top,wrong-import-position
-from msnerf_jax import checkpoint
+from msnerf_jax.core import checkpoint
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax import cli
-from msnerf_jax import config as config_lib
-from msnerf_jax import render as render_lib
-from msnerf_jax import runs
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.kinds import runs
 from msnerf_jax.data.camera_path import read_camera_path
 from msnerf_jax.data.images import to_uint8
 from msnerf_jax.models.multistyle import init_multistyle_params
@@ -408,9 +409,10 @@ def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, 
   its decoder; --styles images come first in the menus, uploads are cover-cropped as the
   decoder paints, and the strength slider blends towards the scene's own statistics."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import style_videos, stylize
+  from msnerf_jax.pipeline import videos as style_videos
+  from msnerf_jax.style import transfer as stylize
   from msnerf_jax.data.images import decode_image
-  from msnerf_jax.data.stylized import style_vector_of
+  from msnerf_jax.style.vectors import style_vector_of
   from msnerf_jax.models import vgg
   from conftest import fake_decoder
   from test_multistyle import write_style
@@ -428,7 +430,7 @@ def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, 
     probe.wait_for(lambda: "strength" in probe.components, 30, "controls")
     stats, original, size = runs.feature_painting(frames.run, frames.scene)
     paint = style_videos.feature_style_renderer(frames.run, frames.scene,
-                                                stylize.load_decoder(decoder), stats)
+                                                stylized_scenes.load_decoder(decoder), stats)
     camera = frames.camera(view, "full")
     _assert_same(_full_frame(probe, viewer, 320, 320, 0),
                  to_uint8(paint(camera, [frames.styles["red"]])[0]))

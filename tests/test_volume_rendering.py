@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.volume_rendering import volume_render
+from msnerf_jax.nerf.volume_rendering import volume_render
 
 
 def test_opaque_first_sample_gives_its_colour_and_depth():

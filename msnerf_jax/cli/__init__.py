@@ -6,10 +6,10 @@ import sys
 from typing import List, Optional
 
 from msnerf_jax import __version__
-from msnerf_jax import files
+from msnerf_jax.core import files
 from msnerf_jax.cli.config_args import Formatter as _Formatter
 from msnerf_jax.cli.config_args import given_options
-from msnerf_jax.errors import Interrupted, UserError
+from msnerf_jax.core.errors import Interrupted, UserError
 
 
 def build_parser() -> argparse.ArgumentParser:

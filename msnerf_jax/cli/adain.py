@@ -2,9 +2,10 @@
 
 import os
 
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.cli.config_args import add_config_option, start_config
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.AdainConfig()
 
@@ -129,7 +130,7 @@ def _train(args):
 
 def _stylize(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import stylize as stylize_lib
+  from msnerf_jax.style import transfer as stylize_lib
   from msnerf_jax.data import images as images_lib
   from msnerf_jax.models import vgg
 
@@ -144,7 +145,7 @@ def _stylize(args):
   if os.path.exists(args.out) and not os.path.isdir(args.out):
     raise UserError(f"{args.out}: is a file, expected an output folder")
   # Read and check everything before writing anything.
-  decoder = stylize_lib.load_decoder(args.decoder)
+  decoder = stylized_scenes.load_decoder(args.decoder)
   max_side = args.max_side if args.max_side > 0 else None
   styles = [images_lib.read_image(p, max_side=4096) for p in args.style]
   contents = [images_lib.read_image(p, max_side=max_side) for p in content_paths]

@@ -32,7 +32,7 @@ def add_grids_argument(parser) -> None:
 
 def check_path_options(frames: int, fps) -> None:
   """UserError unless --frames is >= 0 and --fps (when given) positive."""
-  from msnerf_jax.errors import UserError  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.errors import UserError  # pylint: disable=g-import-not-at-top
   if frames < 0:
     raise UserError(f"--frames {frames}: must be >= 0")
   if fps is not None and not fps > 0:
@@ -61,7 +61,7 @@ def output_stem(path: str) -> str:
 
 def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind: `runs.load_run_and_scene`."""
-  from msnerf_jax import runs  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
   return runs.load_run_and_scene(run_dir, kind)
 
 
@@ -107,8 +107,8 @@ def start_processes(args) -> bool:
   """Joins the other processes when --coordinator is given (before anything else uses
   JAX); returns whether this process prints (process 0, or the only one)."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import distributed
-  from msnerf_jax.errors import UserError
+  from msnerf_jax.core import distributed
+  from msnerf_jax.core.errors import UserError
   if args.coordinator is None:
     if args.num_processes is not None or args.process_id is not None:
       raise UserError("--num-processes and --process-id need --coordinator HOST:PORT")

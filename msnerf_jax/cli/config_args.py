@@ -108,8 +108,8 @@ def start_config(args: argparse.Namespace, kind: str, built: Any,
   field to the option dest that sets it (lr_init -> lr)."""
   if getattr(args, "config", None) is None:
     return built
-  from msnerf_jax import config as config_lib  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.runs import load_config  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core import config as config_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds.runs import load_config  # pylint: disable=g-import-not-at-top
   aliases = aliases or {}
   given = getattr(args, "given", set())
   explicit = {f.name: getattr(built, f.name) for f in dataclasses.fields(built)

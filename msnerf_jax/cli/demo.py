@@ -3,7 +3,7 @@
 import dataclasses
 import os
 
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 # Sized to finish within 15 minutes on a 2-core CPU (see README).
 DEMO_SIZE = 64
@@ -11,7 +11,7 @@ DEMO_VIEWS = 40
 
 
 def demo_settings():
-  from msnerf_jax import pipeline  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
   # About 11.5 minutes on an idle 2-core CPU (README). The decoder gets the largest share: with
   # fewer steps its outputs are the style's texture alone, and the stylized views (and so every
   # render) lose the scene.
@@ -51,7 +51,8 @@ def register(commands, formatter):
 
 def cmd_demo(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import demo, pipeline
+  from msnerf_jax.pipeline import demo
+  from msnerf_jax.pipeline import stages as pipeline
   from msnerf_jax.cli.pipeline import settings_from_args
   if args.size < 16:
     raise UserError(f"--size {args.size}: must be at least 16")

@@ -3,11 +3,11 @@ its runs render with `msnerf render --style IMG`)."""
 
 import os
 
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
 from msnerf_jax.cli.common import add_parallel_arguments, print_summary, start_processes
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.FeatureConfig()
 _HELPS = {

@@ -4,14 +4,15 @@ import json
 import os
 import time
 
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.cli.common import (add_camera_path_arguments, add_grids_argument,
                                    add_parallel_arguments,
                                    load_run_and_scene, output_stem, print_summary,
                                    print_training_summary, render_cameras, start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.MultistyleConfig()
 
@@ -172,7 +173,7 @@ def register(commands, formatter):
 
 
 def cmd_stylize_scene(args):
-  from msnerf_jax import stylize as stylize_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style import transfer as stylize_lib  # pylint: disable=g-import-not-at-top
   t0 = time.time()
   if args.from_features is not None:
     given = [f"--{name.replace('_', '-')}" for name, default in (
@@ -181,14 +182,14 @@ def cmd_stylize_scene(args):
     if given:
       raise UserError(f"{given[0]}: --from-features takes the scene, its size, the stylize "
                       "scale and the statistics from the feature run; drop it")
-    summary, scene = stylize_lib.stylize_scene_from_features(
+    summary, scene = stylized_scenes.stylize_scene_from_features(
         args.from_features, args.styles, args.out, alphas=args.alphas,
         include_original=args.include_original, decoder_dir=args.decoder)
   else:
     for name in ("data", "decoder"):
       if getattr(args, name) is None:
         raise UserError(f"--{name}: required (or --from-features FEATURE_RUN)")
-    summary, scene = stylize_lib.stylize_scene_folder(
+    summary, scene = stylized_scenes.stylize_scene_folder(
         args.data, args.decoder, args.styles, args.out, alphas=args.alphas,
         include_original=args.include_original, downscale=args.downscale,
         stylize_scale=args.stylize_scale, scene_stats=args.scene_stats,
@@ -240,11 +241,11 @@ def cmd_train(args):
 
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import video
-  from msnerf_jax.files import atomic_write_bytes
+  from msnerf_jax.data import video
+  from msnerf_jax.core.files import atomic_write_bytes
   from msnerf_jax.data.stylized import load_stylized
-  from msnerf_jax.evaluate import evaluate_multistyle
-  from msnerf_jax.views import render_styles
+  from msnerf_jax.eval.evaluate import evaluate_multistyle
+  from msnerf_jax.kinds.views import render_styles
   run, scene = load_run_and_scene(args.run, "multistyle")
   stylized = load_stylized(run.record["stylized"])
   if list(stylized.names) != list(run.record["styles"]):
@@ -274,10 +275,10 @@ def cmd_eval(args):
 
 def cmd_render(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import style_videos
-  from msnerf_jax import styles as styles_lib
+  from msnerf_jax.pipeline import videos as style_videos
+  from msnerf_jax.style import vectors as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
-  from msnerf_jax.runs import read_run_file, style_vectors
+  from msnerf_jax.kinds.runs import read_run_file, style_vectors
   kind = read_run_file(args.run)["kind"]
   if kind == "nerf":
     return nerf_cli.cmd_render(args)
@@ -285,7 +286,8 @@ def cmd_render(args):
   styles_lib.check_unit("--strength", args.strength)
   if kind == "features":
     # pylint: disable=g-import-not-at-top
-    from msnerf_jax import runs, stylize
+    from msnerf_jax.kinds import runs
+    from msnerf_jax.style import transfer as stylize
     if args.style is None and not args.interp:
       raise UserError(f"{args.run}: a feature run paints any style image: give --style IMG "
                       "(or --interp A B)")
@@ -294,7 +296,7 @@ def cmd_render(args):
     stats, original, size = runs.feature_painting(run, scene)
     vectors = {styles_lib.ORIGINAL: original}
     renderer = style_videos.feature_style_renderer(
-        run, scene, stylize.load_decoder(args.decoder or run.record["decoder"]), stats,
+        run, scene, stylized_scenes.load_decoder(args.decoder or run.record["decoder"]), stats,
         args.chunk, args.grids)
   else:
     run, scene = load_run_and_scene(args.run, "multistyle")
@@ -318,7 +320,7 @@ def cmd_render(args):
 
 def cmd_evaluate(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import evaluate
+  from msnerf_jax.eval import evaluate
   if args.frames < 9:
     raise UserError(f"--frames {args.frames}: need at least 9 (long range compares t, t + 7)")
   if os.path.isfile(args.out):

@@ -7,14 +7,14 @@ import time
 
 import numpy as np
 
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
 from msnerf_jax.cli.common import (add_camera_path_arguments, add_parallel_arguments,
                                    check_path_options, load_run_and_scene, output_stem,
                                    print_summary, print_training_summary, render_cameras,
                                    start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 
 # NerfConfig fields with options of their own above the generated ones.
@@ -161,8 +161,8 @@ def _load(run_dir):
 def cmd_eval(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.images import write_image
-  from msnerf_jax.files import atomic_write_bytes
-  from msnerf_jax.evaluate import evaluate_nerf
+  from msnerf_jax.core.files import atomic_write_bytes
+  from msnerf_jax.eval.evaluate import evaluate_nerf
   run, scene = _load(args.run)
   t0 = time.time()
   rows, mean, renders = evaluate_nerf(scene, run.params, run.config, args.split, args.chunk)
@@ -191,9 +191,9 @@ def cmd_eval(args):
 
 def cmd_render(args):
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.progress import progress_bar
-  from msnerf_jax import video
-  from msnerf_jax.views import render_view
+  from msnerf_jax.core.progress import progress_bar
+  from msnerf_jax.data import video
+  from msnerf_jax.kinds.views import render_view
   run, scene = _load(args.run)
   poses, fps, size = render_cameras(scene, args)
   stem = output_stem(args.out)
@@ -220,7 +220,7 @@ def cmd_render(args):
 def cmd_camera_path(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.camera_path import write_camera_path
-  from msnerf_jax.runs import run_scene
+  from msnerf_jax.kinds.runs import run_scene
   check_path_options(args.frames, args.fps)
   scene = run_scene(args.run)
   poses = scene.path_poses(args.frames)

@@ -1,8 +1,8 @@
-"""`msnerf pipeline`: every stage in one command, with caching (see msnerf_jax.pipeline)."""
+"""`msnerf pipeline`: every stage in one command, with caching (see msnerf_jax.pipeline.stages)."""
 
 import dataclasses
 
-from msnerf_jax import config as config_lib
+from msnerf_jax.core import config as config_lib
 
 _HELP = {
     "downscale": "scene image downscale factor (0 = the format's default: Blender 1, LLFF 8, "
@@ -46,7 +46,7 @@ def settings_from_args(args, cls):
 
 
 def register(commands, formatter):
-  from msnerf_jax import pipeline  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
   p = commands.add_parser(
       "pipeline", formatter_class=formatter,
       help="every stage in one command: decoder, NeRF, stylized views, multi-style NeRF, "
@@ -69,7 +69,7 @@ def register(commands, formatter):
 
 
 def cmd_pipeline(args):
-  from msnerf_jax import pipeline  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
   summary = pipeline.run_pipeline(args.data, args.styles, args.out, args.decoder,
                                   settings_from_args(args, pipeline.Settings),
                                   progress=not args.no_progress)

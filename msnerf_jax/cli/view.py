@@ -1,7 +1,7 @@
 """`msnerf view`: a run in the browser (msnerf_jax.viewer)."""
 
 from msnerf_jax.cli.common import add_grids_argument
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.train.stop import stop_requests
 
 

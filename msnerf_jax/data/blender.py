@@ -6,8 +6,8 @@ import numpy as np
 
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene, check_poses
-from msnerf_jax.errors import UserError
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.progress import progress_bar
 
 SPLITS = ("train", "val", "test")
 NEAR, FAR = 2.0, 6.0

@@ -17,10 +17,10 @@ from typing import Any, Dict, List, Sequence, Tuple
 
 import numpy as np
 
-from msnerf_jax import cameras as cameras_lib
+from msnerf_jax.nerf import cameras as cameras_lib
 from msnerf_jax.data.images import json_number, read_json
-from msnerf_jax.errors import UserError
-from msnerf_jax.files import atomic_write_bytes
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.files import atomic_write_bytes
 
 
 def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:

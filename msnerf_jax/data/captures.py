@@ -5,7 +5,7 @@ Every capture goes through the same steps:
      COLMAP's pixel convention, lens distortion, and (COLMAP) the sparse points;
   2. the images are loaded at `--downscale` (from images_{factor}/ folders next to the full
      ones when present, otherwise box-downscaled on load) and the intrinsics scaled with
-     them; rays are undistorted per view (msnerf_jax.cameras), the photos used as taken;
+     them; rays are undistorted per view (msnerf_jax.nerf.cameras), the photos used as taken;
   3. the layout is decided and the scene normalised (`normalise`):
        forward-facing (every camera looks within 40 degrees of the mean view direction):
          LLFF's recentring and bounds scaling, NDC rays, the spiral path (depth bounds from
@@ -28,14 +28,14 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from msnerf_jax import cameras as cameras_lib
-from msnerf_jax.config import DataConfig
+from msnerf_jax.nerf import cameras as cameras_lib
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data import colmap, llff
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import transforms as transforms_lib
 from msnerf_jax.data.scene import Scene, check_poses
-from msnerf_jax.errors import UserError
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.progress import progress_bar
 
 LAYOUTS = ("forward-facing", "object")
 FORWARD_FACING_DEGREES = 40.0

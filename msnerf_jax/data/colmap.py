@@ -6,7 +6,7 @@ files, and pycolmap is a large compiled dependency (it bundles COLMAP itself) fo
 them. The reader checks every record: truncated files, unknown camera models, images
 without a camera and points that name missing images are errors naming the file.
 
-Cameras are converted to the library's camera model (msnerf_jax.cameras): K in the pixel
+Cameras are converted to the library's camera model (msnerf_jax.nerf.cameras): K in the pixel
 grid with pixel centres at integers (COLMAP's principal point minus 0.5) and OpenCV
 distortion coefficients (k1, k2, p1, p2, k3).
 """
@@ -18,7 +18,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 # id -> (name, number of parameters), as COLMAP numbers its camera models.
 CAMERA_MODELS = {

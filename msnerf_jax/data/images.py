@@ -9,8 +9,8 @@ from typing import Any, List, Optional, Sequence
 import numpy as np
 from PIL import Image
 
-from msnerf_jax import files
-from msnerf_jax.errors import UserError
+from msnerf_jax.core import files
+from msnerf_jax.core.errors import UserError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 

@@ -7,10 +7,10 @@ from typing import Any, Dict, List, Optional, Tuple
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import cameras as cameras_lib
-from msnerf_jax import rays as rays_lib
-from msnerf_jax.config import DataConfig
-from msnerf_jax.errors import UserError
+from msnerf_jax.nerf import cameras as cameras_lib
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.core.config import DataConfig
+from msnerf_jax.core.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -22,7 +22,7 @@ class Scene:
   splits: name -> indices into images; render_poses: [P, 3, 4] a camera path;
   alphas: [N, H, W] uint8 opacity of RGBA images (Blender), None when the photos have none;
   Ks: [N, 3, 3] per-view intrinsics when views differ (None: every view has K);
-  distortion: [N, 5] per-view lens distortion (msnerf_jax.cameras; None: pinholes);
+  distortion: [N, 5] per-view lens distortion (msnerf_jax.nerf.cameras; None: pinholes);
   layout: how the scene was normalised (captures), printed by the CLI.
   """
   images: np.ndarray

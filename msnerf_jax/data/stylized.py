@@ -21,12 +21,12 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from msnerf_jax import config as config_lib
-from msnerf_jax import files
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene, drop_legacy_data_keys
-from msnerf_jax.errors import UserError
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.progress import progress_bar
 
 MANIFEST = "manifest.json"
 POSES = "poses.npy"
@@ -285,30 +285,3 @@ def load_stylized(out_dir: str, progress: bool = True) -> StylizedData:
   splits = {k: np.asarray(v, np.int64) for k, v in manifest["splits"].items()}
   return StylizedData(names=names, vectors=vectors, images=images, c2w=c2w, splits=splits,
                       path=out_dir)
-
-
-VECTOR_MAX_SIDE = 512  # style images are shrunk to this before their style vector is taken.
-
-
-def style_vector_of(encoder_params: Any, image: np.ndarray,
-                    size: Optional[Tuple[int, int]] = None) -> np.ndarray:
-  """The style vector [1024] of an image [h, w, 3] in [0, 1], with its longer side shrunk to
-  VECTOR_MAX_SIDE, so the vector of a style does not depend on the file's resolution (and one
-  compilation serves most images). Used for training styles and for any image at render time.
-
-  With `size` (height, width), the image is cover-cropped to it instead, as AdaIN crops a
-  style for a content image of that size (stylize.stylize_image): the statistics a feature
-  run paints with, so its strokes have the scale per-frame AdaIN's have.
-  """
-  # pylint: disable=g-import-not-at-top
-  import jax.numpy as jnp
-  from msnerf_jax import adain as adain_lib
-  h, w = image.shape[:2]
-  scale = VECTOR_MAX_SIDE / max(h, w)
-  if size is not None and min(h, w) >= 16:
-    image = images_lib.cover_crop(image, *size)
-  elif scale < 1:
-    image = images_lib.resize(image, max(16, round(h * scale)), max(16, round(w * scale)))
-  if min(image.shape[:2]) < 16:
-    raise UserError(f"style image of {w}x{h} pixels is too small (needs at least 16x16)")
-  return np.asarray(adain_lib.style_vector_jit(encoder_params, jnp.asarray(image, jnp.float32)))

@@ -14,7 +14,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from msnerf_jax.data.images import IMAGE_EXTENSIONS, json_number, read_json
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 FILE = "transforms.json"
 CAMERA_MODELS = ("PINHOLE", "OPENCV")

@@ -12,8 +12,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax.encoding import positional_encoding
-from msnerf_jax.hash_encoding import hash_encode, level_resolutions
+from msnerf_jax.nerf.encoding import positional_encoding
+from msnerf_jax.nerf.hash_encoding import hash_encode, level_resolutions
 from msnerf_jax.models.layers import ConcatInputDense
 
 

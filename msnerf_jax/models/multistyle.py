@@ -9,7 +9,7 @@ The style vector is constant over a ray, so everything that depends only on the 
 once per style (`codes`), including the style half of each head's first layer: a Dense over
 `concat([x, code])` is `x @ K_x + (code @ K_code + b)`, and the bracket is per style.
 
-`MultistyleField` is the model as the conditioned field the renderer (msnerf_jax.render) draws.
+`MultistyleField` is the model as the conditioned field the renderer (msnerf_jax.nerf.render) draws.
 """
 
 import dataclasses
@@ -20,7 +20,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax import occupancy
+from msnerf_jax.nerf import occupancy
 from msnerf_jax.models.hash_trunk import HashTrunk
 from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
 

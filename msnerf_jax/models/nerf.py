@@ -1,5 +1,5 @@
 """The NeRF MLP: a `trunk` (points -> density and view features) and an `rgb` layer; and
-`NerfField`, the MLP as the field the renderer (msnerf_jax.render) draws."""
+`NerfField`, the MLP as the field the renderer (msnerf_jax.nerf.render) draws."""
 
 import dataclasses
 from typing import Any, Dict, Tuple, Union
@@ -8,8 +8,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from msnerf_jax import occupancy
-from msnerf_jax.encoding import encoded_size, positional_encoding
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf.encoding import encoded_size, positional_encoding
 from msnerf_jax.models.hash_trunk import HashTrunk, hash_trunk
 from msnerf_jax.models.layers import ConcatInputDense
 
@@ -98,7 +98,7 @@ class NerfField:
 def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:
   """Fresh params of a run: {"coarse": {"trunk", "rgb"}, "fine": {"trunk", "rgb"}}; with the
   occupancy-grid sampler {"fine": {"trunk", "rgb"}, "occupancy": [G, G, G]} (every cell
-  unknown, see msnerf_jax.occupancy)."""
+  unknown, see msnerf_jax.nerf.occupancy)."""
   model = nerf_mlp(config)
   k_coarse, k_fine = jax.random.split(key)
   x = jnp.zeros((1, 3), jnp.float32)

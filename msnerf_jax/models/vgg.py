@@ -10,7 +10,7 @@ import flax.linen as nn
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 
 # ImageNet statistics the torchvision/VGG weights were trained with.
 IMAGENET_MEAN = (0.485, 0.456, 0.406)

@@ -15,20 +15,20 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from msnerf_jax import adain as adain_lib
-from msnerf_jax import checkpoint as checkpoint_lib
-from msnerf_jax import files
-from msnerf_jax import runs as runs_lib
-from msnerf_jax import config as config_lib
-from msnerf_jax import run_lock
-from msnerf_jax import views
+from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.core import checkpoint as checkpoint_lib
+from msnerf_jax.core import files
+from msnerf_jax.kinds import runs as runs_lib
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.kinds import views
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.errors import UserError
-from msnerf_jax.feature_style import CELL, painted_size
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.style.features import CELL, painted_size
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
-from msnerf_jax.parallel import data_parallel
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core.parallel import data_parallel
+from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 

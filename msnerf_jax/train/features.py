@@ -14,27 +14,28 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import config as config_lib
-from msnerf_jax import distributed
-from msnerf_jax import rays as rays_lib
-from msnerf_jax import render as render_lib
-from msnerf_jax import run_lock
-from msnerf_jax import runs as runs_lib
-from msnerf_jax import stylize as stylize_lib
-from msnerf_jax.adain import encode
-from msnerf_jax.config import FeatureConfig
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import stylized_scenes
+from msnerf_jax.core import distributed
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.kinds import runs as runs_lib
+from msnerf_jax.style import transfer as stylize_lib
+from msnerf_jax.style.adain import encode
+from msnerf_jax.core.config import FeatureConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.images import read_npy
 from msnerf_jax.data.scene import Scene
-from msnerf_jax.errors import UserError
-from msnerf_jax.feature_style import CELL, painted_size, pooled_stats
-from msnerf_jax.files import write_npy
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.style.features import CELL, painted_size, pooled_stats
+from msnerf_jax.core.files import write_npy
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
 from msnerf_jax.models.feature_field import FeatureFieldFn, init_feature_params
 from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.parallel import DataParallel, data_parallel
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core.parallel import DataParallel, data_parallel
+from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
@@ -82,7 +83,7 @@ def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool =
   """(mean [512], std [512]) of the field's rendered relu4_1 cells (views.render_feature_map)
   over up to STATS_VIEWS evenly spaced training views: the statistics stylizing normalises
   by (runs.content_stats)."""
-  from msnerf_jax import views  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import views  # pylint: disable=g-import-not-at-top
   train = scene.split("train")
   pick = train[np.linspace(0, len(train) - 1, min(len(train), STATS_VIEWS)).round().astype(int)]
   return pooled_stats([views.render_feature_map(scene, params, config, int(i))["features"]
@@ -338,7 +339,7 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
   """
   check_same_nerf(run_dir, nerf_run_dir)
   nerf_run, scene, data = multistyle_lib.load_nerf_run(nerf_run_dir)
-  decoder = stylize_lib.load_decoder(decoder_dir)  # refuses another encoder's, up front.
+  decoder = stylized_scenes.load_decoder(decoder_dir)  # refuses another encoder's, up front.
   box = config.scene_box or nerf_run.config.scene_box or nerf_lib.scene_box(scene)
   config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
   devices = data_parallel(n_devices, parallel)

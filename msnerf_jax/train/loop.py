@@ -1,6 +1,6 @@
 """The training loop every trainer (NeRF, multi-style, AdaIN) shares: batches -> a
-data-parallel step (msnerf_jax.parallel) -> progress, NaN guard, history and atomic
-checkpoints with resume, on one process or several (msnerf_jax.distributed)."""
+data-parallel step (msnerf_jax.core.parallel) -> progress, NaN guard, history and atomic
+checkpoints with resume, on one process or several (msnerf_jax.core.distributed)."""
 
 import json
 import os
@@ -10,12 +10,12 @@ from typing import Any, Callable, Dict, Optional, Sequence
 import jax
 import numpy as np
 
-from msnerf_jax import checkpoint as ckpt_lib
-from msnerf_jax import distributed
-from msnerf_jax import files
-from msnerf_jax.errors import Interrupted, UserError
-from msnerf_jax.parallel import DataParallel
-from msnerf_jax.progress import progress_bar
+from msnerf_jax.core import checkpoint as ckpt_lib
+from msnerf_jax.core import distributed
+from msnerf_jax.core import files
+from msnerf_jax.core.errors import Interrupted, UserError
+from msnerf_jax.core.parallel import DataParallel
+from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.train import state as state_lib
 from msnerf_jax.train import stop as stop_lib
 

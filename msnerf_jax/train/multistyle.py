@@ -11,20 +11,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import adain as adain_lib
-from msnerf_jax import runs as runs_lib
-from msnerf_jax import config as config_lib
-from msnerf_jax import distributed
-from msnerf_jax import metrics
-from msnerf_jax import render as render_lib
-from msnerf_jax import run_lock
-from msnerf_jax.config import MultistyleConfig
+from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.kinds import runs as runs_lib
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import distributed
+from msnerf_jax.eval import metrics
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.core.config import MultistyleConfig
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, check_views
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import vgg
 from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params
-from msnerf_jax.parallel import DataParallel, data_parallel
+from msnerf_jax.core.parallel import DataParallel, data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib

@@ -8,20 +8,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import runs
-from msnerf_jax import config as config_lib
-from msnerf_jax import distributed
-from msnerf_jax import metrics
-from msnerf_jax import occupancy
-from msnerf_jax import rays as rays_lib
-from msnerf_jax import regularizers
-from msnerf_jax import render as render_lib
-from msnerf_jax import run_lock
-from msnerf_jax.config import DataConfig, NerfConfig
+from msnerf_jax.kinds import runs
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import distributed
+from msnerf_jax.eval import metrics
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.nerf import regularizers
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.core.config import DataConfig, NerfConfig
 from msnerf_jax.data.scene import Scene
-from msnerf_jax.errors import UserError
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
-from msnerf_jax.parallel import DataParallel, data_parallel
+from msnerf_jax.core.parallel import DataParallel, data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 
@@ -36,7 +36,7 @@ def sample_batch(key, images, c2w, K, config: NerfConfig, precrop: bool, ndc: bo
 
   Args:
     images: [N, H, W, 3] training images; c2w: [N, 3, 4]; K: [3, 3] shared or [N, 3, 3]
-      per view; coeffs: [N, 5] lens distortion per view (msnerf_jax.cameras) or None.
+      per view; coeffs: [N, 5] lens distortion per view (msnerf_jax.nerf.cameras) or None.
     precrop: draw pixels only from the central precrop_frac of each image.
     shape: (H, W, focal) static for the NDC warp.
     alphas: [N, H, W] uint8 opacity of the images (composited over white): given, every
@@ -166,7 +166,7 @@ def train_step(state: state_lib.TrainState, batch, config: NerfConfig,
   With the occupancy-grid sampler, the grid is then refreshed (refresh_grid).
 
   The same function runs under jax.jit (axis_name=None), or per device under jax.shard_map
-  or jax.pmap (axis_name="batch"): see msnerf_jax.parallel.
+  or jax.pmap (axis_name="batch"): see msnerf_jax.core.parallel.
   """
   grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, config, white_background)
   if axis_name is not None:
@@ -250,7 +250,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   time is not counted in the summary's training seconds.
 
   `n_devices` (default: all) and `parallel` ("shard_map" or "pmap") choose the devices:
-  parallel.data_parallel. After msnerf_jax.distributed.initialize, every process calls
+  parallel.data_parallel. After msnerf_jax.core.distributed.initialize, every process calls
   this with the same arguments and the step spans all their devices; process 0 writes.
   """
   config = resolve_config(config, scene)

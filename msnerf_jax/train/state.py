@@ -1,5 +1,5 @@
 """Shared training machinery: TrainState, optimizers with a freeze mask (devices:
-msnerf_jax.parallel)."""
+msnerf_jax.core.parallel)."""
 
 from typing import Any, Callable, Optional
 

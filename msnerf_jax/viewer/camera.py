@@ -13,7 +13,7 @@ from typing import Tuple
 import numpy as np
 import viser.transforms as tf
 
-from msnerf_jax import cameras as cameras_lib
+from msnerf_jax.nerf import cameras as cameras_lib
 from msnerf_jax.data.scene import Scene
 
 # OpenCV camera axes = OpenGL's with y and z flipped.

@@ -20,15 +20,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import render as render_lib
-from msnerf_jax import styles as styles_lib
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.kinds import stylized_scenes
+from msnerf_jax.style import vectors as styles_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
-from msnerf_jax.data.stylized import ORIGINAL, style_name, style_vector_of
-from msnerf_jax.errors import UserError
+from msnerf_jax.data.stylized import ORIGINAL, style_name
+from msnerf_jax.style.vectors import style_vector_of
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.runs import Run, style_vectors
+from msnerf_jax.kinds.runs import Run, style_vectors
 from msnerf_jax.viewer import camera as camera_lib
 
 LEVELS = ("low", "full")
@@ -84,12 +86,14 @@ class Frames:
     self._paint = None
     if run.kind == "features":
       # pylint: disable=g-import-not-at-top
-      from msnerf_jax import runs, style_videos, stylize
+      from msnerf_jax.kinds import runs
+      from msnerf_jax.pipeline import videos as style_videos
+      from msnerf_jax.style import transfer as stylize
       stats, original, self._painted_size = runs.feature_painting(run, scene)
       self.config = run.config.nerf
       # Its "original" is the scene's own statistics: the strength slider blends towards it.
       self.styles = {ORIGINAL: original}
-      decoder = stylize.load_decoder(decoder_dir or run.record["decoder"])
+      decoder = stylized_scenes.load_decoder(decoder_dir or run.record["decoder"])
       self._paint = {level: style_videos.feature_style_renderer(
           run, scene, decoder, stats, grids=1 if level == "low" else grids) for level in LEVELS}
     elif run.kind == "multistyle":

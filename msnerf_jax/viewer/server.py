@@ -19,8 +19,8 @@ import viser
 
 from msnerf_jax.data.camera_path import camera_path_dict, read_camera_path
 from msnerf_jax.data.stylized import ORIGINAL
-from msnerf_jax.errors import UserError
-from msnerf_jax.files import atomic_write_bytes
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.files import atomic_write_bytes
 from msnerf_jax.viewer import camera as camera_lib
 from msnerf_jax.viewer.frames import Frames, Request, StyleChoice, View
 from msnerf_jax.viewer.scheduler import Scheduler
@@ -320,7 +320,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
     a port that cannot be bound.
   """
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax import runs
+  from msnerf_jax.kinds import runs
   kind = runs.read_run_file(run_dir)["kind"]
   if kind not in VIEWABLE:
     raise UserError(f"{run_dir}: a {kind!r} run has no scene to view (view a "

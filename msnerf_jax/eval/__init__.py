@@ -1,0 +1,1 @@
+"""Evaluation: image metrics, multi-view consistency and the evaluation of runs."""

@@ -1,0 +1,280 @@
+"""Run folders: run.json (kind, config, data), the config check on resume, `load_run` and
+`scene_of`, and a multi-style run's style vectors. The orbax checkpoints inside a run folder
+are `msnerf_jax.core.checkpoint`."""
+
+import dataclasses
+import json
+import os
+from typing import Any, Dict, Optional
+
+import numpy as np
+
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core import run_lock
+from msnerf_jax.core.checkpoint import CHECKPOINT_DIR, Checkpoints
+from msnerf_jax.data.images import read_json, read_npy
+from msnerf_jax.core.files import write_json, write_npy
+from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
+from msnerf_jax.data.stylized import style_views
+from msnerf_jax.core.errors import UserError
+
+RUN_FILE = "run.json"
+STYLE_VECTORS = "style_vectors.npy"  # a multi-style run's training styles, [M, 1024].
+# A feature run's scene statistics (relu4_1 mean and std, [2, 512]): of its targets (the
+# encoder's features of the training views), and of the trained field's own renders of those
+# views at a step (what stylizing normalises by; see content_stats).
+CONTENT_STATS = "content_stats.npy"
+RENDERED_STATS = "rendered_stats_{step}.npy"
+
+
+# The command that makes a run of each kind (named when another kind is given).
+TRAIN_COMMANDS = {"nerf": "msnerf nerf train", "adain": "msnerf adain train",
+                  "multistyle": "msnerf multistyle train", "features": "msnerf features train"}
+
+
+def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
+  """The parsed run.json of a run folder ({"kind", "config", ...}); with `kind`, a UserError
+  unless the run is of that kind."""
+  if not os.path.exists(run_dir):
+    raise UserError(f"{run_dir}: no such run folder")
+  if not os.path.isdir(run_dir):
+    raise UserError(f"{run_dir}: is a file, expected a run folder")
+  path = os.path.join(run_dir, RUN_FILE)
+  if not os.path.exists(path):
+    raise UserError(f"{path}: missing; {run_dir} is not a msnerf run folder")
+  run = read_json(path)
+  if not isinstance(run, dict) or "kind" not in run or "config" not in run:
+    raise UserError(f"{path}: missing 'kind' or 'config'")
+  if isinstance(run.get("data"), dict):
+    drop_legacy_data_keys(run["data"], path)
+  if kind is not None and run["kind"] != kind:
+    raise UserError(f"{path}: a {run['kind']!r} run, not a {kind!r} run (train one with "
+                    f"`{TRAIN_COMMANDS.get(kind, 'msnerf')}`)")
+  return run
+
+
+def load_config(path: str, kind: str) -> Any:
+  """The config of a saved run, to start another from: `path` is a run folder or its
+  run.json; UserError unless it is a run of `kind`."""
+  run_dir = os.path.dirname(path) if os.path.basename(path) == RUN_FILE else path
+  if os.path.isfile(path) and os.path.basename(path) != RUN_FILE:
+    raise UserError(f"{path}: expected a run folder or its {RUN_FILE}")
+  run = read_run_file(run_dir, kind)
+  return config_lib.from_dict(config_lib.config_class(kind), run["config"],
+                              os.path.join(run_dir, RUN_FILE))
+
+
+def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any], lock: bool = False) -> bool:
+  """Creates a run folder or checks that an existing one was made with the same settings.
+
+  Args:
+    run_dir: the folder.
+    kind: "nerf", "adain", "multistyle".
+    run: JSON-able dict with at least "config"; saved as run.json together with `kind`.
+    lock: a trainer's call: take the run folder's lock (msnerf_jax.core.run_lock) once the
+      settings are checked, before run.json is written; a trainer already running there
+      makes this a UserError naming it, and nothing is written.
+  Returns:
+    True when the folder already held this run (training resumes), False when new.
+  Raises:
+    UserError when the path is a file, or the folder holds a run of another kind or config
+    (its checkpoints are never touched then).
+  """
+  record = {"kind": kind, **run}
+  if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+    raise UserError(f"{run_dir}: is a file, expected a run folder")
+  path = os.path.join(run_dir, RUN_FILE)
+  if os.path.exists(path):
+    saved = read_run_file(run_dir)
+    if saved.get("kind") != kind:
+      raise UserError(f"{run_dir}: holds a {saved.get('kind')!r} run, not {kind!r}; "
+                      "choose another --out")
+    # A run.json written before a config field existed holds that field's default.
+    saved["config"] = config_lib.to_dict(config_lib.from_dict(
+        config_lib.config_class(kind), saved["config"], path))
+    # Compare what defines the run; "steps" may grow to train longer.
+    mismatch = config_lib.diff(_defining(saved), _defining(record))
+    if mismatch:
+      raise UserError(f"{run_dir}: was made with another config ({mismatch}); "
+                      "use another --out, or the same options to resume")
+    if lock:
+      run_lock.acquire(run_dir)
+    write_json(path, record)
+    return True
+  if os.path.isdir(run_dir) and os.listdir(run_dir):
+    if os.path.exists(os.path.join(run_dir, CHECKPOINT_DIR)):
+      raise UserError(f"{run_dir}: has checkpoints but no {RUN_FILE}; refusing to overwrite")
+  try:
+    os.makedirs(run_dir, exist_ok=True)
+    if lock:
+      run_lock.acquire(run_dir)
+    write_json(path, record)
+  except PermissionError:
+    raise UserError(f"{run_dir}: not writable") from None
+  except OSError as e:
+    raise UserError(f"{run_dir}: cannot create run folder ({e.strerror})") from None
+  return False
+
+
+def _defining(record: Dict[str, Any]) -> Dict[str, Any]:
+  record = json.loads(json.dumps(record))  # deep copy, tuples -> lists
+  record.get("config", {}).pop("steps", None)
+  record.pop("summary", None)
+  return record
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+  """A saved run: its kind, config (frozen dataclass), params pytree and step."""
+  run_dir: str
+  kind: str
+  config: Any
+  params: Any
+  step: int
+  record: Dict[str, Any]
+
+
+def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
+  """Loads a run folder: config from run.json and params of its latest checkpoint; with
+  `kind`, refuses a run of another kind before reading any checkpoint.
+
+  Returns:
+    `Run` with `.config`, `.params` (nested dict of numpy arrays) and `.step`.
+  """
+  record = read_run_file(run_dir, kind)
+  kind = record["kind"]
+  config = config_lib.from_dict(config_lib.config_class(kind), record["config"],
+                                os.path.join(run_dir, RUN_FILE))
+  checkpoints = Checkpoints(run_dir)
+  try:
+    step = checkpoints.latest_step()
+    if step is None:
+      raise UserError(f"{run_dir}: no checkpoint yet (train first)")
+    restored = checkpoints.restore()
+  finally:
+    checkpoints.close()
+  params = _to_numpy(restored["params"])
+  check_params(params, _expected_params(kind, config),
+               os.path.join(run_dir, CHECKPOINT_DIR, str(step)))
+  return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
+             record=record)
+
+
+def scene_of(run: Run):
+  """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
+  style of a stylized dataset (run.json's "style"), that style's views are its images."""
+  source = os.path.join(run.run_dir, RUN_FILE)
+  scene, data = load_scene(_data_config(run.record, source))
+  style = run.record.get("style")
+  if style is not None:
+    if not isinstance(style, dict) or not {"stylized", "name"} <= set(style):
+      raise UserError(f"{source}: 'style' needs 'stylized' and 'name'")
+    scene = style_views(style["stylized"], style["name"], scene)
+  return scene, data
+
+
+def _data_config(record: Dict[str, Any], source: str) -> config_lib.DataConfig:
+  """The DataConfig of a run.json record read by read_run_file (`source` names it)."""
+  if "data" not in record:
+    raise UserError(f"{source}: a {record['kind']!r} run has no scene")
+  return config_lib.from_dict(config_lib.DataConfig, record["data"], source)
+
+
+def run_scene(run_dir: str):
+  """The scene (its cameras and normalised world) a run folder was trained on, without
+  loading its checkpoint."""
+  return load_scene(_data_config(read_run_file(run_dir), os.path.join(run_dir, RUN_FILE)))[0]
+
+
+def load_run_and_scene(run_dir: str, kind: str):
+  """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
+  run = load_run(run_dir, kind)
+  return run, scene_of(run)[0]
+
+
+def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
+  write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
+
+
+def style_vectors(run: Run) -> Dict[str, np.ndarray]:
+  """name -> [1024] vector of every training style of a multi-style run."""
+  names = run.record.get("styles", [])
+  vectors = read_npy(os.path.join(run.run_dir, STYLE_VECTORS), (len(names), run.config.style_dim))
+  return dict(zip(names, vectors))
+
+
+def content_stats(run: Run):
+  """(mean [512], std [512]) the features of a loaded feature run are normalised by before a
+  style's statistics are put on: those of the field's own renders of the training views at
+  the run's step, pooled over every cell (written when training ends). The rendered features
+  are the mean of views that disagree, so their spread is narrower than the encoder's (a
+  third of it on the demo scene); normalising by the encoder's statistics would shrink every
+  style's contrast by as much. Runs without them (training stopped early, or made before
+  they were written) fall back to the encoder's statistics of the training views."""
+  path = os.path.join(run.run_dir, RENDERED_STATS.format(step=run.step))
+  if not os.path.exists(path):
+    path = os.path.join(run.run_dir, CONTENT_STATS)
+  stats = read_npy(path, (2, 512))
+  return stats[0], stats[1]
+
+
+def feature_painting(run: Run, scene):
+  """What painting a loaded feature run's views in a style needs besides the style: its
+  content statistics (content_stats), its "original" style vector (those statistics as a
+  style: AdaIN towards them is the identity, so blending a style's vector towards it sets
+  the strength) and the (height, width) its decoder paints a view of `scene` at (what a
+  style picture is cover-cropped to, as per-frame AdaIN crops it).
+
+  Returns: ((mean [512], std [512]), original [1024], (height, width)).
+  """
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.style.features import painted_size, style_vector_of_stats
+  stats = content_stats(run)
+  return (stats, style_vector_of_stats(stats),
+          painted_size(scene.height, scene.width, run.config.stylize_scale))
+
+
+def _expected_params(kind: str, config: Any):
+  """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
+  # pylint: disable=g-import-not-at-top
+  import jax
+  from msnerf_jax.models.nerf import init_nerf_params
+  if kind == "nerf":
+    return jax.eval_shape(lambda: init_nerf_params(config, jax.random.PRNGKey(0)))
+  if kind == "multistyle":
+    from msnerf_jax.models.multistyle import init_multistyle_params
+    return jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(0)))
+  if kind == "features":
+    from msnerf_jax.models.feature_field import init_feature_params
+    key = jax.random.PRNGKey(0)
+    return jax.eval_shape(lambda: {"nerf": init_nerf_params(config.nerf, key), "features":
+                                   init_feature_params(config, config.scene_box, key)})
+  if kind == "adain":
+    from msnerf_jax.models import decoder as decoder_lib
+    if config.upsample in decoder_lib.UPSAMPLE_MODES:  # else refused by stylized_scenes.load_decoder.
+      # The flax variables {"params": {"conv0": ...}}.
+      return jax.eval_shape(lambda: decoder_lib.init_decoder(jax.random.PRNGKey(0),
+                                                             config.upsample))
+  return None
+
+
+def check_params(params: Any, expected: Any, where: str) -> None:
+  """UserError naming `where` unless params have the tree and shapes of `expected`."""
+  import jax  # pylint: disable=g-import-not-at-top
+  if expected is None:
+    return
+  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(params):
+    raise UserError(f"{where}: parameters of another architecture than its run.json says")
+  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
+                               jax.tree_util.tree_leaves(params)):
+    if tuple(want.shape) != tuple(np.shape(got)):
+      raise UserError(f"{where}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
+                      f"its config expects {tuple(want.shape)} (another architecture)")
+
+
+def _to_numpy(tree):
+  if isinstance(tree, dict):
+    return {k: _to_numpy(v) for k, v in tree.items()}
+  if isinstance(tree, (list, tuple)):
+    return type(tree)(_to_numpy(v) for v in tree)
+  return np.asarray(tree)

@@ -1,0 +1,1 @@
+"""NeRF primitives: cameras, rays, encodings, sampling, occupancy grids, volume rendering, regularizers and the one renderer of every field."""

@@ -1,0 +1,1 @@
+"""Applications: the one-command pipeline, the demo and the render videos."""
