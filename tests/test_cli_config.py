@@ -109,7 +109,8 @@ def test_config_file_keeps_what_the_command_line_does_not_set(kind, argv, field,
                                                              tmp_path):
   from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli.config_args import given_options, start_config  # pylint: disable=g-import-not-at-top
-  cls = config_lib.config_class(kind)
+  from msnerf_jax.kinds.registry import get_kind  # pylint: disable=g-import-not-at-top
+  cls = get_kind(kind).config_class
   saved = dataclasses.replace(cls(), steps=7, seed=5)
   runs.prepare_run_dir(str(tmp_path / "run"), kind, {"config": config_lib.to_dict(saved)})
   parser = cli.build_parser()

@@ -13,6 +13,7 @@ import pytest
 
 import msnerf_jax
 from msnerf_jax.nerf import occupancy
+from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.core.config import DataConfig, NerfConfig, check_nerf_config, nerf_preset
 from msnerf_jax.data.scene import load_scene
@@ -327,7 +328,7 @@ def test_multistyle_sweep_on_the_grid_equals_single_renders(fast_world):
   from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import views
   run = msnerf_jax.load_run(fast_world["run"])
-  vectors = runs.style_vectors(run)
+  vectors = multistyle_kind.style_vectors(run)
   styles = np.stack([vectors["red"], vectors["blue"]])
   c2w = fast_world["scene"].c2w[4]
   sweep = views.render_styles(fast_world["scene"], run.params, run.config, c2w, styles, chunk=64)

@@ -17,6 +17,7 @@ import pytest
 
 import msnerf_jax
 from msnerf_jax import cli
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.kinds import runs
 from msnerf_jax.core.config import DataConfig, FeatureConfig
@@ -142,13 +143,13 @@ def test_targets_are_cached_and_the_content_stats_pooled_over_the_fields_renders
   run_dir = feature_world["run"]
   targets = np.load(os.path.join(run_dir, features.TARGETS))
   assert targets.shape == (4, 4, 4, 512) and targets.dtype == np.float16  # 16 px x 2 / 8
-  encoded = np.load(os.path.join(run_dir, runs.CONTENT_STATS))
+  encoded = np.load(os.path.join(run_dir, feature_kind.CONTENT_STATS))
   want = pooled_stats(list(targets.astype(np.float32)))
   np.testing.assert_allclose(encoded, np.stack(want), rtol=1e-4, atol=1e-5)
   # Stylizing normalises by the trained field's own renders of the training views.
   from msnerf_jax.kinds import views  # pylint: disable=g-import-not-at-top
   run, scene = msnerf_jax.load_run(run_dir), feature_world["scene"]
-  mean, std = runs.content_stats(run)
+  mean, std = feature_kind.content_stats(run)
   maps = [views.render_feature_map(scene, run.params, run.config, int(i))["features"]
           for i in scene.split("train")]
   rendered = pooled_stats(maps)
@@ -157,7 +158,7 @@ def test_targets_are_cached_and_the_content_stats_pooled_over_the_fields_renders
   assert not np.allclose(std, encoded[1], rtol=0.05)
   # Without them (a run from before they were written): the encoder's statistics.
   stale = dataclasses.replace(run, step=run.step + 1)
-  np.testing.assert_allclose(np.stack(runs.content_stats(stale)), encoded)
+  np.testing.assert_allclose(np.stack(feature_kind.content_stats(stale)), encoded)
 
 
 @pytest.mark.parametrize("sampler", ["hierarchical", "grid"])
@@ -244,7 +245,7 @@ def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_feature
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
   decoder = stylized_scenes.load_decoder(feature_world["decoder"])
-  stats = runs.content_stats(run)
+  stats = feature_kind.content_stats(run)
   rng = np.random.default_rng(3)
   styles = np.concatenate([rng.uniform(0, 2, (3, 512)), rng.uniform(0.5, 2, (3, 512))], 1)
   camera = scene.c2w[4]
@@ -278,7 +279,7 @@ def test_frames_averaged_over_four_cell_grids_follow_half_cell_shifts_exactly(fe
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
   decoder = stylized_scenes.load_decoder(feature_world["decoder"])
-  stats = runs.content_stats(run)
+  stats = feature_kind.content_stats(run)
   style = np.concatenate([np.full(512, 0.5), np.full(512, 1.5)]).astype(np.float32)
   size, shift = 64, 2  # half a cell: 4 pixels of the view enlarged 2x.
   K = scene.K.copy()
@@ -325,7 +326,7 @@ def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dat
   assert manifest["stylize_scale"] == 2 and manifest["content_stats"] == "scene"
   # View 5 in the red style at strength 0.5: the field's render of that camera, with half the
   # style's statistics and half the scene's, on the photo's white background.
-  stats = runs.content_stats(run)
+  stats = feature_kind.content_stats(run)
   # The style picture as per-frame AdaIN crops it for the painted size (32 x 32 here).
   red = style_vector_of(load_vgg_params(), read_image(style), (32, 32))
   vector = 0.5 * style_vector_of_stats(stats) + 0.5 * np.asarray(red)
@@ -494,7 +495,7 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
   assert maps.shape == (len(scene.split("train")), 4, 4, 512) and maps.dtype == np.float16
-  mean, std = runs.content_stats(run)
+  mean, std = feature_kind.content_stats(run)
   np.testing.assert_array_equal(stats, np.stack([mean, std]))
   rendered = views.render_feature_map(scene, run.params, run.config, int(scene.split("train")[1]))
   np.testing.assert_allclose(maps[1], (rendered["features"] - mean) / std, rtol=2e-3, atol=2e-3)

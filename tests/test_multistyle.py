@@ -15,6 +15,7 @@ import pytest
 from PIL import Image
 
 from msnerf_jax import cli, load_run
+from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.core import checkpoint
 from msnerf_jax.kinds import runs
@@ -258,7 +259,7 @@ def test_trunk_is_frozen_and_heads_train(world, trained):
 def test_sweep_equals_separate_renders_and_interpolation_endpoints(world, trained):
   from msnerf_jax.style.vectors import blend  # pylint: disable=g-import-not-at-top
   run, scene = load_run(trained), world["scene"]
-  vectors = runs.style_vectors(run)
+  vectors = multistyle_kind.style_vectors(run)
   a, b = vectors["red"], vectors["blue"]
   styles = np.stack([a, b, blend(a, b, 0.3)])
   c2w = scene.c2w[4]

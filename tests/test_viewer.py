@@ -21,6 +21,8 @@ pytest.importorskip("viser")
 
 # pylint: disable=g-import-not-at-top,wrong-import-position
 from msnerf_jax.core import checkpoint
+from msnerf_jax.kinds import features as feature_kind
+from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax import cli
 from msnerf_jax.core import config as config_lib
@@ -49,7 +51,7 @@ def multistyle_run(run_dir, data):
   runs.prepare_run_dir(run_dir, "multistyle", {
       "config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
       "styles": list(STYLES)})
-  runs.save_style_vectors(run_dir, np.random.default_rng(0).normal(
+  multistyle_kind.save_style_vectors(run_dir, np.random.default_rng(0).normal(
       size=(len(STYLES), 1024)).astype(np.float32) ** 2)
   # Random params of the right tree (tracing, not running, flax's init: a second, not seven).
   rng = np.random.default_rng(1)
@@ -349,14 +351,14 @@ def test_bad_runs_and_ports_end_with_one_line(world, tmp_path, capsys):
 
 
 def test_browser_page_shows_a_new_render_after_a_slider_moves(world, tmp_path):
-  """experiments/viewer_browser.py: headless Chromium through Playwright (skipped when
+  """experiments/tools/viewer_browser.py: headless Chromium through Playwright (skipped when
   either is missing, as on CI)."""
   script = os.path.join(os.path.dirname(os.path.dirname(__file__)), "experiments",
-                        "viewer_browser.py")
+                        "tools", "viewer_browser.py")
   out = str(tmp_path / "screens.png")
   done = subprocess.run([sys.executable, script, "--run", world["run"], "--out", out],
                         capture_output=True, text=True, timeout=600,
-                        env=dict(os.environ, PYTHONPATH=os.path.dirname(script) + "/.."))
+                        env=dict(os.environ, PYTHONPATH=os.path.dirname(script) + "/../.."))
   if done.returncode == 77:
     pytest.skip(done.stdout.strip())
   assert done.returncode == 0, done.stdout + done.stderr
@@ -396,7 +398,7 @@ def untrained_feature_run(run_dir, nerf_run, decoder, data):
       "nerf_run": os.path.abspath(nerf_run), "decoder": os.path.abspath(decoder)})
   rng = np.random.default_rng(2)
   stats = np.stack([rng.normal(size=512), rng.uniform(0.5, 2.0, size=512)]).astype(np.float32)
-  np.save(os.path.join(run_dir, runs.RENDERED_STATS.format(step=2)), stats)
+  np.save(os.path.join(run_dir, feature_kind.RENDERED_STATS.format(step=2)), stats)
   ckpts = checkpoint.Checkpoints(run_dir)
   ckpts.save(2, state_lib.checkpoint_tree(features.init_state(
       config, runs.load_run(nerf_run, "nerf").params)))
@@ -428,9 +430,9 @@ def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, 
     view = frames.start_request().view
     probe.camera(view.wxyz, view.position, view.fov, 320, 320)
     probe.wait_for(lambda: "strength" in probe.components, 30, "controls")
-    stats, original, size = runs.feature_painting(frames.run, frames.scene)
-    paint = style_videos.feature_style_renderer(frames.run, frames.scene,
-                                                stylized_scenes.load_decoder(decoder), stats)
+    stats, original, size = feature_kind.feature_painting(frames.run, frames.scene)
+    paint = feature_kind.style_renderer(frames.run, frames.scene,
+                                        decoder=stylized_scenes.load_decoder(decoder))
     camera = frames.camera(view, "full")
     _assert_same(_full_frame(probe, viewer, 320, 320, 0),
                  to_uint8(paint(camera, [frames.styles["red"]])[0]))

@@ -1,8 +1,8 @@
 """Benchmarks AdaIN: stylizing one image (after compilation) and decoder training throughput.
 
-  python experiments/bench_adain.py                       # 400x400 stylize + 256x256 training
-  taskset -c 0 python experiments/bench_adain.py          # pinned to one core
-  python experiments/bench_adain.py --decoder /work/runs/adain_cpu2   # a trained decoder
+  python experiments/benchmarks/bench_adain.py               # 400x400 stylize + 256x256 training
+  taskset -c 0 python experiments/benchmarks/bench_adain.py  # pinned to one core
+  python experiments/benchmarks/bench_adain.py --decoder /work/runs/adain_cpu2   # a trained decoder
 
 Prints seconds per stylized image (median of --repeats, compilation excluded) for
 (a) the full path (encode content and style, AdaIN, decode) and (b) a style given by its
@@ -16,29 +16,23 @@ compared with what the hardware can do at all.
 import argparse
 import os
 import platform
-import sys
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from msnerf_jax import config as config_lib  # pylint: disable=g-import-not-at-top
-from msnerf_jax import stylize as stylize_lib
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.style import transfer as stylize_lib
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
 from msnerf_jax.train import adain as train_adain
+from common import call_times
 
 
 def timed(fn, repeats):
-  jax.block_until_ready(fn())  # compile + warm up
-  times = []
-  for _ in range(repeats):
-    t = time.perf_counter()
-    jax.block_until_ready(fn())
-    times.append(time.perf_counter() - t)
+  """Median and best wall time of fn() after a warm-up call (compilation)."""
+  times = call_times(fn, repeats)
   return float(np.median(times)), float(np.min(times))
 
 
@@ -76,15 +70,8 @@ def matmul_gflops(n: int = 2048, repeats: int = 5) -> float:
   """float32 [n, n] @ [n, n] rate of this machine (best of `repeats`), GFLOP/s."""
   a = jnp.asarray(np.random.default_rng(0).random((n, n), np.float32))
   f = jax.jit(lambda x: x @ x)
-  jax.block_until_ready(f(a))
-  best = min(timed_once(lambda: f(a)) for _ in range(repeats))
+  best = min(call_times(lambda: f(a), repeats))
   return 2 * n ** 3 / best / 1e9
-
-
-def timed_once(fn) -> float:
-  t = time.perf_counter()
-  jax.block_until_ready(fn())
-  return time.perf_counter() - t
 
 
 def cpu_name():

@@ -13,9 +13,10 @@ at the end, the seconds to render one test view (after a warm-up render) and, fo
 occupancy grid, the share of its cells that are occupied.
 
 Usage:
-  python experiments/bench_empty_space.py lego [--steps 3000] [--eval-every 1000]
+  python experiments/benchmarks/bench_empty_space.py lego [--steps 3000] [--eval-every 1000]
       [--preset cpu] [--out runs/bench_empty_space]
-  python experiments/bench_empty_space.py fern [--steps 1000] [--weight 0.01] [--preset fast]
+  python experiments/benchmarks/bench_empty_space.py fern [--steps 1000] [--weight 0.01]
+      [--preset fast]
 
 Writes RUN/<variant>/ for each variant, OUT/<scene>_bench.json and OUT/<scene>_opacity.png
 (rows: variants; columns: render, opacity, depth of the first two val/test views).
@@ -26,7 +27,6 @@ import dataclasses
 import functools
 import json
 import os
-import platform
 import shutil
 import time
 
@@ -35,21 +35,26 @@ import jax.numpy as jnp
 import numpy as np
 
 import msnerf_jax
-from msnerf_jax import files, occupancy, regularizers, render as render_lib, video
-from msnerf_jax.config import DataConfig, nerf_preset
+from msnerf_jax.core import files
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf import regularizers
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.data import video
+from msnerf_jax.core.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
-from msnerf_jax.evaluate import evaluate_nerf
+from msnerf_jax.eval.evaluate import evaluate_nerf
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.train import nerf
-from msnerf_jax.views import render_view
-from msnerf_jax.volume_rendering import ray_starts, segment_cumsum
+from msnerf_jax.kinds.views import render_view
+from msnerf_jax.nerf.volume_rendering import ray_starts, segment_cumsum
+from common import DATA, machine
 
 
 def _weight_stats_packed(config, params, rays):
   """_weight_stats for the occupancy-grid sampler's packed samples (every kept step)."""
   n = rays["origins"].shape[0]
-  out = render_lib.render_rays_grid(NerfField(config), params, rays, config, {}, False,
+  out = render_rays_grid(NerfField(config), params, rays, config, {}, False,
                                     budget=n * config.march_steps)
   w, ray, interval = out["weights"], out["sample_ray"], out["sample_interval"]
   dist = regularizers.distortion_packed(w, interval, ray, rays["near"], rays["far"])
@@ -101,7 +106,7 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("scene", choices=("lego", "fern"))
-  parser.add_argument("--data", default=os.environ.get("MSNERF_DATA", "../shared/data"))
+  parser.add_argument("--data", default=DATA)
   parser.add_argument("--preset", default="cpu", choices=("cpu", "paper", "fast"))
   parser.add_argument("--steps", type=int, default=None, help="lego 3000, fern 1000")
   parser.add_argument("--eval-every", type=int, default=None, help="lego 1000, fern 500")
@@ -145,8 +150,7 @@ def main():
     variants = {k: v for k, v in variants.items() if k in args.variants}
   print(f"# {args.scene} {scene.width}x{scene.height}, preset {args.preset}, {steps} steps, "
         f"precrop {base.precrop_steps}, every {args.view_stride}. {split} view; "
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"jax {jax.__version__} on {jax.devices()[0].platform}")
+        f"machine: {machine()}")
   extra = ("opacity_background", "opacity_object") if lego else ("distortion", "off_surface")
   print(f"{'variant':<18} {'step':>6} {'train_s':>8} {'psnr':>7} {'ssim':>7} "
         + " ".join(f"{k:>18}" for k in extra))

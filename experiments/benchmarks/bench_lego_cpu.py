@@ -1,7 +1,8 @@
 """Lego at 100x100 (--downscale 8), preset `cpu`: PSNR on the 9 val views against training wall-clock.
 
 Usage:
-  python experiments/bench_lego_cpu.py [--minutes 30] [--eval-every 500] [--out runs/bench_lego_cpu]
+  python experiments/benchmarks/bench_lego_cpu.py [--minutes 30] [--eval-every 500]
+      [--out runs/bench_lego_cpu]
       [--set key=value ...]   # NerfConfig overrides, e.g. --set net_width=64
 
 Prints one line per evaluation: step, training seconds (evaluation excluded), val PSNR/SSIM,
@@ -12,24 +13,20 @@ on a 2-core CPU.
 import argparse
 import json
 import os
-import platform
 import shutil
 
-import jax
-
-from msnerf_jax import evaluate
-from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.eval import evaluate
+from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
-from bench_presets import parse_overrides
+from common import DATA, machine, parse_overrides
 from timed_training import train_within
 
 
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--data", default=os.path.join(
-      os.environ.get("MSNERF_DATA", "../shared/data"), "nerf_synthetic", "lego"))
+  parser.add_argument("--data", default=os.path.join(DATA, "nerf_synthetic", "lego"))
   parser.add_argument("--minutes", type=float, default=30.0)
   parser.add_argument("--eval-every", type=int, default=500)
   parser.add_argument("--out", default="runs/bench_lego_cpu")
@@ -42,8 +39,7 @@ def main():
   config = NerfConfig(**{**config.__dict__, "steps": 10**6})
   shutil.rmtree(args.out, ignore_errors=True)
   print(f"# lego 100x100, preset cpu {config}")
-  print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"jax {jax.__version__} on {jax.devices()[0].platform}")
+  print(f"# machine: {machine()}")
   print(f"{'step':>7} {'train_s':>8} {'val_psnr':>9} {'val_ssim':>9}")
   rows, _ = train_within(
       args.minutes,

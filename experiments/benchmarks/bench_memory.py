@@ -4,7 +4,8 @@ rgb/depth/disparity/accumulation out), because `render_image` feeds the network 
 chunks of `render_chunk` rays.
 
 Usage:
-  python experiments/bench_memory.py [--sizes 200 400 800] [--max-chunks 2] [--chunk 4096]
+  python experiments/benchmarks/bench_memory.py [--sizes 200 400 800] [--max-chunks 2]
+      [--chunk 4096]
 
 Each size runs in a fresh process (peak RSS = resource.getrusage ru_maxrss) with random
 parameters (memory does not depend on the weights). A full 800x800 `paper` render takes over
@@ -23,8 +24,9 @@ import sys
 CHILD = r"""
 import json, resource, sys, time
 import jax, numpy as np
-from msnerf_jax import rays as rays_lib, render
-from msnerf_jax.config import nerf_preset
+from msnerf_jax.nerf import rays as rays_lib
+from msnerf_jax.nerf import render
+from msnerf_jax.core.config import nerf_preset
 from msnerf_jax.data.blender import pose_spherical
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
 

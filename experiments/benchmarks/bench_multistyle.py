@@ -10,7 +10,7 @@
 2. Rendering a 100x100 image in K = 8 styles with the vmapped-style sweep vs in 1 style.
    Target: <= 2x.
 
-  python experiments/bench_multistyle.py [--preset cpu|paper] [--styles 4] [--steps 5]
+  python experiments/benchmarks/bench_multistyle.py [--preset cpu|paper] [--styles 4] [--steps 5]
 """
 
 import argparse
@@ -18,35 +18,24 @@ import dataclasses
 import functools
 import os
 import platform
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import render as render_lib
-from msnerf_jax.config import MultistyleConfig, nerf_preset
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.core.config import MultistyleConfig, nerf_preset
 from msnerf_jax.models.multistyle import MultistyleField, init_multistyle_params, multistyle_mlp
 from msnerf_jax.models.nerf import init_nerf_params
-from msnerf_jax.parallel import data_parallel
-from msnerf_jax.rays import get_rays, ray_bundle
+from msnerf_jax.core.parallel import data_parallel
+from msnerf_jax.nerf.rays import get_rays, ray_bundle
 from msnerf_jax.train import multistyle
+from common import call_times, synthetic_rays
 
 
 def timed(fn, repeats):
   """Mean wall time of fn() over `repeats` calls after one warm-up call (compilation)."""
-  jax.block_until_ready(fn())
-  t = time.perf_counter()
-  for _ in range(repeats):
-    jax.block_until_ready(fn())
-  return (time.perf_counter() - t) / repeats
-
-
-def synthetic_rays(n, key):
-  """Rays from radius 4 towards the origin, as in the lego set-up."""
-  origins = jnp.tile(jnp.array([0.0, 0.0, 4.0]), (n, 1))
-  directions = jnp.array([0.0, 0.0, -1.0]) + 0.2 * jax.random.normal(key, (n, 3))
-  return ray_bundle(origins, directions, 2.0, 6.0)
+  return float(np.mean(call_times(fn, repeats)))
 
 
 # ----------------------------------------------------------------------------- reference formulation

@@ -1,6 +1,6 @@
 """Training and rendering throughput over devices and processes, on this machine.
 
-  python experiments/bench_parallel.py [--data DATA/nerf_synthetic/lego] [--steps 30]
+  python experiments/benchmarks/bench_parallel.py [--data DATA/nerf_synthetic/lego] [--steps 30]
 
 Runs, each in fresh processes (XLA_FLAGS decides the CPU devices of a process):
   training rays/s of the `cpu` preset's NeRF step on lego 100x100 for
@@ -19,22 +19,22 @@ import subprocess
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
+from common import DATA, ROOT
 
 
 def worker(args):
   # pylint: disable=g-import-not-at-top
   if args.processes > 1:
-    from msnerf_jax import distributed
+    from msnerf_jax.core import distributed
     distributed.initialize(f"127.0.0.1:{args.port}", args.processes, args.process_id, 120)
   import jax
   import jax.numpy as jnp
   import numpy as np
-  from msnerf_jax import parallel
-  from msnerf_jax.config import DataConfig, nerf_preset
+  from msnerf_jax.core import parallel
+  from msnerf_jax.core.config import DataConfig, nerf_preset
   from msnerf_jax.data.scene import load_scene
   from msnerf_jax.train import nerf
-  from msnerf_jax.views import render_view
+  from msnerf_jax.kinds.views import render_view
   scene, data = load_scene(DataConfig(path=args.data, downscale=8))
   config = nerf_preset("cpu", data.format)
   dp = parallel.data_parallel(None, args.mode)
@@ -71,7 +71,7 @@ def worker(args):
 
 def run(data, steps, devices, processes, mode):
   env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}",
-             PYTHONPATH=os.path.dirname(HERE))
+             PYTHONPATH=ROOT)
   with socket.socket() as s:
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
@@ -87,10 +87,7 @@ def run(data, steps, devices, processes, mode):
 
 def main():
   p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  default_data = os.path.join(os.environ.get("MSNERF_DATA", os.path.join(HERE, "..", "..",
-                                                                         "shared", "data")),
-                              "nerf_synthetic", "lego")
-  p.add_argument("--data", default=default_data)
+  p.add_argument("--data", default=os.path.join(DATA, "nerf_synthetic", "lego"))
   p.add_argument("--steps", type=int, default=30)
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   p.add_argument("--mode", default="shard_map", help=argparse.SUPPRESS)
@@ -101,7 +98,7 @@ def main():
   if args.worker:
     return worker(args)
   print(f"# {os.cpu_count()} cores; lego 100x100, preset cpu, {args.steps} timed steps each; "
-        f"command: python experiments/bench_parallel.py --steps {args.steps}")
+        f"command: python experiments/benchmarks/bench_parallel.py --steps {args.steps}")
   rows = [("1 process x 1 device", 1, 1, "shard_map"),
           ("1 process x 2 devices, shard_map", 2, 1, "shard_map"),
           ("1 process x 2 devices, pmap", 2, 1, "pmap"),

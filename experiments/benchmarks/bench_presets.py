@@ -2,7 +2,7 @@
 rate of rendering one held-out view, for each (scene, preset), in one run.
 
 Usage:
-  python experiments/bench_presets.py [--scenes lego fern] [--presets cpu fast]
+  python experiments/benchmarks/bench_presets.py [--scenes lego fern] [--presets cpu fast]
       [--minutes 10 15] [--eval-every 250] [--out runs/bench_presets]
       [--set PRESET:key=value ...]   # NerfConfig overrides of one preset
 
@@ -20,34 +20,19 @@ fern >= 23 dB within 15 minutes on the 2-core CPU; the fast preset renders a leg
 import argparse
 import json
 import os
-import platform
 import shutil
 import time
 
-import jax
-
-from msnerf_jax import evaluate
-from msnerf_jax.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.eval import evaluate
+from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
-from msnerf_jax.views import render_view
+from msnerf_jax.kinds.views import render_view
+from common import DATA, machine, parse_overrides
 from timed_training import train_within
 
 SCENES = {"lego": ("nerf_synthetic/lego", 8, "val"), "lego400": ("nerf_synthetic/lego", 2, "val"),
           "lego800": ("nerf_synthetic/lego", 1, "val"), "fern": ("nerf_llff_data/fern", 8, "test")}
-
-
-def parse_overrides(items, preset):
-  fields = NerfConfig.__dataclass_fields__
-  out = {}
-  for item in items:
-    name, setting = item.split(":", 1) if ":" in item else (preset, item)
-    if name != preset:
-      continue
-    key, value = setting.split("=", 1)
-    kind = type(fields[key].default)
-    out[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
-  return out
 
 
 def bench(scene_name, preset, minutes, args):
@@ -87,7 +72,7 @@ def bench(scene_name, preset, minutes, args):
 def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--data", default=os.environ.get("MSNERF_DATA", "../shared/data"))
+  parser.add_argument("--data", default=DATA)
   parser.add_argument("--scenes", nargs="+", default=["lego", "fern"], choices=sorted(SCENES))
   parser.add_argument("--presets", nargs="+", default=["cpu", "fast"])
   parser.add_argument("--minutes", nargs="+", type=float, default=[10.0, 15.0],
@@ -96,8 +81,7 @@ def main():
   parser.add_argument("--out", default="runs/bench_presets")
   parser.add_argument("--set", nargs="*", default=[], metavar="PRESET:KEY=VALUE")
   args = parser.parse_args()
-  print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"jax {jax.__version__} on {jax.devices()[0].platform}", flush=True)
+  print(f"# machine: {machine()}", flush=True)
   results = []
   for scene_name, minutes in zip(args.scenes, args.minutes * len(args.scenes)):
     for preset in args.presets:

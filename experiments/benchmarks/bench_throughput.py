@@ -2,11 +2,12 @@
 against this machine's dense float32 matmul rate, all measured in one run.
 
 Usage:
-  python experiments/bench_throughput.py [--presets paper cpu] [--steps 5] [--render-rays 4096]
+  python experiments/benchmarks/bench_throughput.py [--presets paper cpu] [--steps 5]
+      [--render-rays 4096]
 
 On a shared machine pin it to one core and give XLA one thread, e.g.
   XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \
-    taskset -c 1 python experiments/bench_throughput.py
+    taskset -c 1 python experiments/benchmarks/bench_throughput.py
 
 Target (issue 2): the `paper` training step's MLP FLOP rate >= 70% of the matmul rate
 (issue 16: 80%). Printed against the best of three large shapes, and against a matmul of
@@ -19,27 +20,22 @@ factor 3 counts the forward pass and the two backward matmuls (activations, weig
 import argparse
 import os
 import platform
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.config import nerf_preset
+from msnerf_jax.core.config import nerf_preset
 from msnerf_jax.models.nerf import NerfField, mlp_flops_per_sample
-from msnerf_jax.parallel import data_parallel
-from msnerf_jax.render import render_image
+from msnerf_jax.core.parallel import data_parallel
+from msnerf_jax.nerf.render import draw_randomness, render_image
 from msnerf_jax.train import nerf
+from common import call_times, synthetic_rays
 
 
 def timed(fn, repeats):
   """Best-of and mean wall time of fn() after one warm-up call (compilation)."""
-  jax.block_until_ready(fn())
-  times = []
-  for _ in range(repeats):
-    t = time.perf_counter()
-    jax.block_until_ready(fn())
-    times.append(time.perf_counter() - t)
+  times = call_times(fn, repeats)
   return min(times), float(np.mean(times))
 
 
@@ -63,11 +59,7 @@ def synthetic_batch(config, key):
   """A training batch of rays looking at the origin from radius 4 (the lego set-up)."""
   b = config.batch_rays
   k1, k2 = jax.random.split(key)
-  origins = jnp.tile(jnp.array([0.0, 0.0, 4.0]), (b, 1))
-  directions = jnp.array([0.0, 0.0, -1.0]) + 0.2 * jax.random.normal(k1, (b, 3))
-  from msnerf_jax.rays import ray_bundle  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.render import draw_randomness  # pylint: disable=g-import-not-at-top
-  return {"rays": ray_bundle(origins, directions, 2.0, 6.0),
+  return {"rays": synthetic_rays(b, k1),
           "rgb": jax.random.uniform(k2, (b, 3)), "random": draw_randomness(key, b, config)}
 
 

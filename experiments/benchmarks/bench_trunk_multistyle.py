@@ -3,7 +3,7 @@ mean PSNR over the stylized dataset's styles on the held-out views against their
 wall-clock, for every NeRF run given, in one run.
 
 Usage:
-  python experiments/bench_trunk_multistyle.py --nerf NERF_RUN [NERF_RUN ...] \
+  python experiments/benchmarks/bench_trunk_multistyle.py --nerf NERF_RUN [NERF_RUN ...] \
       --stylized DIR [--minutes 10] [--eval-every 250] [--out runs/bench_trunk_multistyle]
 
 Each NeRF run (e.g. `bench_presets.py --presets cpu fast`'s lego runs, trained for the same
@@ -21,18 +21,19 @@ training time.
 import argparse
 import json
 import os
-import platform
 import shutil
 
-import jax
 import numpy as np
 
-from msnerf_jax import evaluate, runs, video
-from msnerf_jax.config import MultistyleConfig
+from msnerf_jax.eval import evaluate
+from msnerf_jax.kinds import runs
+from msnerf_jax.data import video
+from msnerf_jax.core.config import MultistyleConfig
 from msnerf_jax.data.images import write_image
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
-from msnerf_jax.views import render_styles
+from msnerf_jax.kinds.views import render_styles
+from common import machine
 from timed_training import train_within
 
 
@@ -89,8 +90,7 @@ def main():
   parser.add_argument("--eval-every", type=int, default=250)
   parser.add_argument("--out", default="runs/bench_trunk_multistyle")
   args = parser.parse_args()
-  print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"jax {jax.__version__} on {jax.devices()[0].platform}", flush=True)
+  print(f"# machine: {machine()}", flush=True)
   stylized = load_stylized(args.stylized, progress=False)
   results = [bench(path, stylized, args.minutes, args) for path in args.nerf]
   print(f"\n| NeRF run | trunk | sampler | NeRF val PSNR | heads: s a step | mean PSNR over "

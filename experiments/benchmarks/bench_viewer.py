@@ -4,7 +4,7 @@ server and protocol (msnerf_jax.viewer.probe as the browser), against the same f
 rendered directly in the same run.
 
 Usage:
-  python experiments/bench_viewer.py --run RUN [--moves 20]
+  python experiments/benchmarks/bench_viewer.py --run RUN [--moves 20]
 
 RUN: a NeRF or multi-style run folder (the issue's target: a lego 100x100 multi-style run).
 Targets (issue 18, 2-core CPU): low frame < 0.3 s after a move, full 100x100 frame < 2 s.

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Fern at factor 8 (504x378) with NDC rays, preset cpu: train, evaluate on the held-out views,
 # render the spiral path as MP4/GIF (+ depth).
-# Usage: experiments/fern_spiral.sh [STEPS] [OUT] [FRAMES]
+# Usage: experiments/benchmarks/fern_spiral.sh [STEPS] [OUT] [FRAMES]
 set -euo pipefail
 DATA="${MSNERF_DATA:-../shared/data}/nerf_llff_data/fern"
 STEPS="${1:-3500}"

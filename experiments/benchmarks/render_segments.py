@@ -2,7 +2,7 @@
 several march_segments (early ray termination between segments), and the view's PSNR.
 
 Usage:
-  python experiments/render_segments.py --run RUN [--segments 2 4 8 16] [--split test]
+  python experiments/benchmarks/render_segments.py --run RUN [--segments 2 4 8 16] [--split test]
 
 Each count renders the view once to compile, then once timed. The image does not depend on
 the count (up to the rays stopped at transmittance 1e-4).
@@ -10,15 +10,14 @@ the count (up to the rays stopped at transmittance 1e-4).
 
 import argparse
 import dataclasses
-import os
-import platform
 import time
 
-import jax
 import numpy as np
 
-from msnerf_jax import metrics, runs
-from msnerf_jax.views import render_view
+from msnerf_jax.eval import metrics
+from msnerf_jax.kinds import runs
+from msnerf_jax.kinds.views import render_view
+from common import machine
 
 
 def main():
@@ -31,8 +30,7 @@ def main():
   run, scene = runs.load_run_and_scene(args.run, "nerf")
   view = int(scene.split(args.split)[0])
   print(f"# {args.run}: {args.split} view {view}, {scene.width}x{scene.height}; machine: "
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, jax "
-        f"{jax.__version__} on {jax.devices()[0].platform}")
+        f"{machine()}")
   for segments in args.segments:
     config = dataclasses.replace(run.config, march_segments=segments)
     render_view(scene, run.params, config, view)  # compile

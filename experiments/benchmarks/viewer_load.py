@@ -3,7 +3,7 @@ time against a real server process on 127.0.0.1; the script prints the frames ea
 got, the server's memory over time, and whether Ctrl-C stopped it cleanly.
 
 Usage:
-  python experiments/viewer_load.py --run RUN [--clients 8] [--seconds 120]
+  python experiments/benchmarks/viewer_load.py --run RUN [--clients 8] [--seconds 120]
 
 Each client drags its camera around the scene's render path (a camera message every 50 ms,
 as a browser sends during a drag) for 2 s, rests 3 s, and so on, out of phase with the
@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from msnerf_jax import runs
+from msnerf_jax.kinds import runs
 from msnerf_jax.viewer import camera as camera_lib
 from msnerf_jax.viewer import probe as probe_lib
 

@@ -4,7 +4,7 @@
 # Needs OUT from multistyle.sh. Usage: experiments/paper/interpolation.sh lego|fern OUT [A B]
 . "$(dirname "$0")/common.sh" "$1"
 OUT="$2"; A="${3:-asheville}"; B="${4:-mondrian}"
-python "$(dirname "$0")/../style_controls.py" --run "$OUT/ms" --out "$OUT/interp_${A}_$B" interp "$A" "$B"
+python "$(dirname "$0")/style_controls.py" --run "$OUT/ms" --out "$OUT/interp_${A}_$B" interp "$A" "$B"
 msnerf render --run "$OUT/ms" --out "$OUT/interp_${A}_$B/video" --interp "$A" "$B" --t 0.5 \
   --morph "$A" "$B" --frames "$FRAMES"
 footer "interpolation $A -> $B, $SCENE"

@@ -5,7 +5,7 @@
 # Needs OUT from multistyle.sh. Usage: experiments/paper/strength.sh lego|fern OUT [STYLE]
 . "$(dirname "$0")/common.sh" "$1"
 OUT="$2"; STYLE="${3:-brushstrokes}"
-python "$(dirname "$0")/../style_controls.py" --run "$OUT/ms" --out "$OUT/strength_$STYLE" strength "$STYLE"
+python "$(dirname "$0")/style_controls.py" --run "$OUT/ms" --out "$OUT/strength_$STYLE" strength "$STYLE"
 msnerf render --run "$OUT/ms" --out "$OUT/strength_$STYLE/video" --style "$STYLE" --strength 0.5 \
   --morph original "$STYLE" --frames "$FRAMES"
 footer "strength original -> $STYLE, $SCENE"

@@ -1,14 +1,14 @@
 """The paper's style controls on a multi-style run, measured: interpolation, strength, unseen styles.
 
-  python experiments/style_controls.py --run RUN --out DIR interp A B     # A -> B
-  python experiments/style_controls.py --run RUN --out DIR strength S     # original -> S
-  python experiments/style_controls.py --run RUN --out DIR unseen IMG ... # styles never trained on
+  python experiments/paper/style_controls.py --run RUN --out DIR interp A B     # A -> B
+  python experiments/paper/style_controls.py --run RUN --out DIR strength S     # original -> S
+  python experiments/paper/style_controls.py --run RUN --out DIR unseen IMG ... # never trained on
 
 A and B are training styles (names) or image files; S is a training style. Each renders
 --views views of the run's camera path and writes DIR/grid.png (rows: views; for unseen: each
 style image, then the multi-style views, then per-frame AdaIN of the NeRF's renders), and
 DIR/results.md/.json with the style distance (AdaIN statistics loss over relu1_1..relu4_1,
-msnerf_jax.metrics.style_distance; lower = closer), averaged over the views:
+msnerf_jax.eval.metrics.style_distance; lower = closer), averaged over the views:
 
   interp:   at t in [0, 1]: the distance of the renders to style A and to style B;
   strength: at s in [0, 1]: the distance to the style, and the PSNR against the NeRF's
@@ -23,23 +23,22 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top
-from msnerf_jax import evaluate, metrics, video, views
-from msnerf_jax import stylize as stylize_lib
-from msnerf_jax import files
+from msnerf_jax.eval import evaluate
+from msnerf_jax.eval import metrics
+from msnerf_jax.data import video
+from msnerf_jax.kinds import views
+from msnerf_jax.style import transfer as stylize_lib
+from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import load_run, load_run_and_scene, style_vectors
-from msnerf_jax.styles import resolve_style, sweep
+from msnerf_jax.kinds.runs import load_run, load_run_and_scene, style_vectors
+from msnerf_jax.style.vectors import resolve_style, sweep
 
 
 def style_picture(spec, sources):

@@ -5,7 +5,7 @@
 # Needs OUT from multistyle.sh. Usage: experiments/paper/unseen_styles.sh lego|fern OUT
 . "$(dirname "$0")/common.sh" "$1"
 OUT="$2"
-python "$(dirname "$0")/../style_controls.py" --run "$OUT/ms" --out "$OUT/unseen" unseen "${UNSEEN[@]}"
+python "$(dirname "$0")/style_controls.py" --run "$OUT/ms" --out "$OUT/unseen" unseen "${UNSEEN[@]}"
 for image in "${UNSEEN[@]}"; do
   name=$(basename "${image%.*}")
   msnerf render --run "$OUT/ms" --out "$OUT/unseen/$name" --style "$image" --frames "$FRAMES" \

@@ -1,6 +1,6 @@
 """Held-out views of NeRF runs next to their photos: one pair of rows (photos, renders) per run.
 
-  PYTHONPATH=. python experiments/capture_figure.py --run RUN [RUN ...] --views 4 \
+  python experiments/tools/capture_figure.py --run RUN [RUN ...] --views 4 \
       --out experiments/figures/captures_heldout.jpg
 
 Each run is rendered at `--views` evenly spaced views of its val split, with each view's own
@@ -9,14 +9,13 @@ intrinsics and lens (what `msnerf nerf eval` renders); prints the PSNR of each s
 
 import argparse
 import os
-import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top,wrong-import-position
-from msnerf_jax import metrics, runs, video, views
+from msnerf_jax.eval import metrics
+from msnerf_jax.kinds import runs
+from msnerf_jax.data import video
+from msnerf_jax.kinds import views
 
 
 def main():

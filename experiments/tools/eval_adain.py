@@ -12,7 +12,7 @@ content correlate: the script prints the mean Pearson correlation of their Sobel
 magnitudes (1 = same edges, ~0 for unrelated images), and writes a grid PNG
 (row 1: the styles; then per content: content | outputs).
 
-  python experiments/eval_adain.py --decoder /work/runs/adain_cpu --grid docs/adain_grid.png
+  python experiments/tools/eval_adain.py --decoder /work/runs/adain_cpu --grid docs/adain_grid.png
 """
 
 import argparse
@@ -25,11 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from msnerf_jax import adain as adain_lib  # pylint: disable=g-import-not-at-top
-from msnerf_jax import stylize as stylize_lib
-from msnerf_jax import files
+from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.style import transfer as stylize_lib
+from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg

@@ -3,7 +3,7 @@ dataset, the pipeline's renders) and three `msnerf render` calls (a training sty
 an image file at a strength) run with the code of a git revision and with this checkout, then
 every image, .gif frame, .npy array and the trained parameters are compared bit for bit.
 
-  python experiments/same_outputs.py REV [--work DIR]
+  python experiments/tools/same_outputs.py REV [--work DIR]
 
 Prints one line per difference and a summary; exits 1 if anything differs. About 4 minutes on
 2 CPU cores.
@@ -19,11 +19,9 @@ import imageio.v2 as imageio
 import jax
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+from msnerf_jax.kinds.runs import load_run
 
-# pylint: disable=g-import-not-at-top,wrong-import-position
-from msnerf_jax.runs import load_run
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 TINY = ["--size", "16", "--views", "4", "--adain-steps", "2", "--adain-size", "16",
         "--nerf-steps", "4", "--nerf-batch-rays", "64", "--ms-steps", "3", "--ms-batch-rays", "32",
@@ -67,12 +65,12 @@ def compare(a: str, b: str) -> list:
     x, y = read(os.path.join(a, rel)), read(os.path.join(b, rel))
     if x.shape != y.shape or not np.array_equal(x, y):
       found.append(f"differs: {rel}")
-  for kind in ("adain", "nerf", "multistyle"):
+  for kind in ("adain", "nerf", "multistyle", "features"):
     pa, pb = (jax.tree_util.tree_leaves(load_run(os.path.join(r, "demo", kind)).params)
               for r in (a, b))
     if len(pa) != len(pb) or not all(np.array_equal(x, y) for x, y in zip(pa, pb)):
       found.append(f"differs: {kind} parameters")
-  print(f"compared {len(in_a & in_b)} files and the params of 3 runs")
+  print(f"compared {len(in_a & in_b)} files and the params of 4 runs")
   return found
 
 

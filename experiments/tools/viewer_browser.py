@@ -3,7 +3,8 @@ opens the page, waits for the full frame, clicks a slider (strength, else blend)
 a user would, and waits for the new frame; the two screenshots must differ where the render is.
 
 Usage:
-  python experiments/viewer_browser.py --run RUN [--out experiments/figures/viewer_browser.png]
+  python experiments/tools/viewer_browser.py --run RUN
+      [--out experiments/figures/viewer_browser.png]
 
 Needs `pip install playwright` and a Chromium (Debian: `apt install chromium`; or set
 CHROMIUM=/path/to/chrome). Prints the mean pixel change and writes both screenshots side by

@@ -5,6 +5,7 @@ import os
 import time
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.cli.common import (add_camera_path_arguments, add_grids_argument,
                                    add_parallel_arguments,
@@ -278,30 +279,20 @@ def cmd_render(args):
   from msnerf_jax.pipeline import videos as style_videos
   from msnerf_jax.style import vectors as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
-  from msnerf_jax.kinds.runs import read_run_file, style_vectors
-  kind = read_run_file(args.run)["kind"]
-  if kind == "nerf":
+  from msnerf_jax.kinds.registry import get_kind
+  from msnerf_jax.kinds.renderers import style_rendering
+  from msnerf_jax.kinds.runs import read_run_file
+  kind = get_kind(read_run_file(args.run)["kind"])
+  if kind.style_renderer is None:
     return nerf_cli.cmd_render(args)
   styles_lib.check_unit("--t", args.t)
   styles_lib.check_unit("--strength", args.strength)
-  if kind == "features":
-    # pylint: disable=g-import-not-at-top
-    from msnerf_jax.kinds import runs
-    from msnerf_jax.style import transfer as stylize
-    if args.style is None and not args.interp:
-      raise UserError(f"{args.run}: a feature run paints any style image: give --style IMG "
-                      "(or --interp A B)")
-    run, scene = load_run_and_scene(args.run, "features")
-    # Its "original" is the scene's own statistics: --strength blends towards them (alpha).
-    stats, original, size = runs.feature_painting(run, scene)
-    vectors = {styles_lib.ORIGINAL: original}
-    renderer = style_videos.feature_style_renderer(
-        run, scene, stylized_scenes.load_decoder(args.decoder or run.record["decoder"]), stats,
-        args.chunk, args.grids)
-  else:
-    run, scene = load_run_and_scene(args.run, "multistyle")
-    vectors, size = style_vectors(run), None
-    renderer = style_videos.style_renderer(run, scene, args.chunk)
+  if kind.paints_any_style and args.style is None and not args.interp:
+    raise UserError(f"{args.run}: a {kind.title} run paints any style image: give --style IMG "
+                    "(or --interp A B)")
+  run, scene = load_run_and_scene(args.run, kind.name)
+  # A painting kind's "original" is the scene's own statistics: --strength blends towards it.
+  vectors, size, renderer = style_rendering(run, scene, args.chunk, args.grids, args.decoder)
   cache = {}
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
                                              args.t, args.strength, size)
@@ -312,7 +303,7 @@ def cmd_render(args):
       renderer, poses, main, ends,
       output_stem(args.out), fps, args.grid_steps, args.grid_views)
   seconds = time.time() - t0
-  print_summary(f"{'feature-field' if kind == 'features' else 'multi-style'} render done", [
+  print_summary(f"{kind.title} render done", [
       ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
       ("frames", f"{len(poses)} of {size}"),
       ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])

@@ -258,15 +258,6 @@ def override(config: T, **overrides: Any) -> T:
   return dataclasses.replace(config, **overrides)
 
 
-def config_class(kind: str) -> Type:
-  """The config dataclass of a run kind as saved in run.json."""
-  kinds: Dict[str, Type] = {"nerf": NerfConfig, "adain": AdainConfig,
-                            "multistyle": MultistyleConfig, "features": FeatureConfig}
-  if kind not in kinds:
-    raise UserError(f"unknown run kind {kind!r} (known: {', '.join(sorted(kinds))})")
-  return kinds[kind]
-
-
 def to_dict(config: Any) -> Dict[str, Any]:
   return dataclasses.asdict(config)
 

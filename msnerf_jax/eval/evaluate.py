@@ -40,7 +40,9 @@ from msnerf_jax.data.stylized import StylizedData, read_manifest
 from msnerf_jax.style.vectors import style_vector_of
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import vgg
-from msnerf_jax.kinds.runs import feature_painting, load_run, scene_of, style_vectors
+from msnerf_jax.kinds.runs import load_run, scene_of
+from msnerf_jax.kinds.multistyle import style_vectors
+from msnerf_jax.kinds.features import feature_painting
 from msnerf_jax.kinds.views import render_feature_styles, render_styles, render_view
 from msnerf_jax.core.progress import progress_bar
 

@@ -1,5 +1,5 @@
 """Run folders: run.json (kind, config, data), the config check on resume, `load_run` and
-`scene_of`, and a multi-style run's style vectors. The orbax checkpoints inside a run folder
+`scene_of` (each kind's config class and params come from msnerf_jax.kinds.registry). The orbax checkpoints inside a run folder
 are `msnerf_jax.core.checkpoint`."""
 
 import dataclasses
@@ -12,24 +12,14 @@ import numpy as np
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core import run_lock
 from msnerf_jax.core.checkpoint import CHECKPOINT_DIR, Checkpoints
-from msnerf_jax.data.images import read_json, read_npy
-from msnerf_jax.core.files import write_json, write_npy
+from msnerf_jax.data.images import read_json
+from msnerf_jax.core.files import write_json
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
 from msnerf_jax.data.stylized import style_views
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.kinds.registry import KINDS, get_kind
 
 RUN_FILE = "run.json"
-STYLE_VECTORS = "style_vectors.npy"  # a multi-style run's training styles, [M, 1024].
-# A feature run's scene statistics (relu4_1 mean and std, [2, 512]): of its targets (the
-# encoder's features of the training views), and of the trained field's own renders of those
-# views at a step (what stylizing normalises by; see content_stats).
-CONTENT_STATS = "content_stats.npy"
-RENDERED_STATS = "rendered_stats_{step}.npy"
-
-
-# The command that makes a run of each kind (named when another kind is given).
-TRAIN_COMMANDS = {"nerf": "msnerf nerf train", "adain": "msnerf adain train",
-                  "multistyle": "msnerf multistyle train", "features": "msnerf features train"}
 
 
 def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
@@ -49,7 +39,7 @@ def read_run_file(run_dir: str, kind: Optional[str] = None) -> Dict[str, Any]:
     drop_legacy_data_keys(run["data"], path)
   if kind is not None and run["kind"] != kind:
     raise UserError(f"{path}: a {run['kind']!r} run, not a {kind!r} run (train one with "
-                    f"`{TRAIN_COMMANDS.get(kind, 'msnerf')}`)")
+                    f"`{_train_command(kind)}`)")
   return run
 
 
@@ -60,7 +50,7 @@ def load_config(path: str, kind: str) -> Any:
   if os.path.isfile(path) and os.path.basename(path) != RUN_FILE:
     raise UserError(f"{path}: expected a run folder or its {RUN_FILE}")
   run = read_run_file(run_dir, kind)
-  return config_lib.from_dict(config_lib.config_class(kind), run["config"],
+  return config_lib.from_dict(get_kind(kind).config_class, run["config"],
                               os.path.join(run_dir, RUN_FILE))
 
 
@@ -91,7 +81,7 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any], lock: bool = F
                       "choose another --out")
     # A run.json written before a config field existed holds that field's default.
     saved["config"] = config_lib.to_dict(config_lib.from_dict(
-        config_lib.config_class(kind), saved["config"], path))
+        get_kind(kind).config_class, saved["config"], path))
     # Compare what defines the run; "steps" may grow to train longer.
     mismatch = config_lib.diff(_defining(saved), _defining(record))
     if mismatch:
@@ -143,7 +133,7 @@ def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
   """
   record = read_run_file(run_dir, kind)
   kind = record["kind"]
-  config = config_lib.from_dict(config_lib.config_class(kind), record["config"],
+  config = config_lib.from_dict(get_kind(kind).config_class, record["config"],
                                 os.path.join(run_dir, RUN_FILE))
   checkpoints = Checkpoints(run_dir)
   try:
@@ -154,7 +144,7 @@ def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
   finally:
     checkpoints.close()
   params = _to_numpy(restored["params"])
-  check_params(params, _expected_params(kind, config),
+  check_params(params, expected_params(kind, config),
                os.path.join(run_dir, CHECKPOINT_DIR, str(step)))
   return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
              record=record)
@@ -192,72 +182,6 @@ def load_run_and_scene(run_dir: str, kind: str):
   return run, scene_of(run)[0]
 
 
-def save_style_vectors(run_dir: str, vectors: np.ndarray) -> None:
-  write_npy(os.path.join(run_dir, STYLE_VECTORS), np.asarray(vectors, np.float32))
-
-
-def style_vectors(run: Run) -> Dict[str, np.ndarray]:
-  """name -> [1024] vector of every training style of a multi-style run."""
-  names = run.record.get("styles", [])
-  vectors = read_npy(os.path.join(run.run_dir, STYLE_VECTORS), (len(names), run.config.style_dim))
-  return dict(zip(names, vectors))
-
-
-def content_stats(run: Run):
-  """(mean [512], std [512]) the features of a loaded feature run are normalised by before a
-  style's statistics are put on: those of the field's own renders of the training views at
-  the run's step, pooled over every cell (written when training ends). The rendered features
-  are the mean of views that disagree, so their spread is narrower than the encoder's (a
-  third of it on the demo scene); normalising by the encoder's statistics would shrink every
-  style's contrast by as much. Runs without them (training stopped early, or made before
-  they were written) fall back to the encoder's statistics of the training views."""
-  path = os.path.join(run.run_dir, RENDERED_STATS.format(step=run.step))
-  if not os.path.exists(path):
-    path = os.path.join(run.run_dir, CONTENT_STATS)
-  stats = read_npy(path, (2, 512))
-  return stats[0], stats[1]
-
-
-def feature_painting(run: Run, scene):
-  """What painting a loaded feature run's views in a style needs besides the style: its
-  content statistics (content_stats), its "original" style vector (those statistics as a
-  style: AdaIN towards them is the identity, so blending a style's vector towards it sets
-  the strength) and the (height, width) its decoder paints a view of `scene` at (what a
-  style picture is cover-cropped to, as per-frame AdaIN crops it).
-
-  Returns: ((mean [512], std [512]), original [1024], (height, width)).
-  """
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.style.features import painted_size, style_vector_of_stats
-  stats = content_stats(run)
-  return (stats, style_vector_of_stats(stats),
-          painted_size(scene.height, scene.width, run.config.stylize_scale))
-
-
-def _expected_params(kind: str, config: Any):
-  """Shapes the params of a run of this kind and config have (None: checked elsewhere)."""
-  # pylint: disable=g-import-not-at-top
-  import jax
-  from msnerf_jax.models.nerf import init_nerf_params
-  if kind == "nerf":
-    return jax.eval_shape(lambda: init_nerf_params(config, jax.random.PRNGKey(0)))
-  if kind == "multistyle":
-    from msnerf_jax.models.multistyle import init_multistyle_params
-    return jax.eval_shape(lambda: init_multistyle_params(config, jax.random.PRNGKey(0)))
-  if kind == "features":
-    from msnerf_jax.models.feature_field import init_feature_params
-    key = jax.random.PRNGKey(0)
-    return jax.eval_shape(lambda: {"nerf": init_nerf_params(config.nerf, key), "features":
-                                   init_feature_params(config, config.scene_box, key)})
-  if kind == "adain":
-    from msnerf_jax.models import decoder as decoder_lib
-    if config.upsample in decoder_lib.UPSAMPLE_MODES:  # else refused by stylized_scenes.load_decoder.
-      # The flax variables {"params": {"conv0": ...}}.
-      return jax.eval_shape(lambda: decoder_lib.init_decoder(jax.random.PRNGKey(0),
-                                                             config.upsample))
-  return None
-
-
 def check_params(params: Any, expected: Any, where: str) -> None:
   """UserError naming `where` unless params have the tree and shapes of `expected`."""
   import jax  # pylint: disable=g-import-not-at-top
@@ -278,3 +202,17 @@ def _to_numpy(tree):
   if isinstance(tree, (list, tuple)):
     return type(tree)(_to_numpy(v) for v in tree)
   return np.asarray(tree)
+
+
+def _train_command(kind: str) -> str:
+  return KINDS[kind].train_command if kind in KINDS else "msnerf"
+
+
+def expected_params(kind: str, config: Any):
+  """Shapes (jax.ShapeDtypeStruct leaves) the params of a run of this kind and config have,
+  from its registered initialiser (None: checked elsewhere)."""
+  import jax  # pylint: disable=g-import-not-at-top
+  init = get_kind(kind).init_params
+  if init is None:
+    return None
+  return jax.eval_shape(lambda: init(config, jax.random.PRNGKey(0)))

@@ -12,6 +12,7 @@ from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.data import stylized as stylized_lib
 from msnerf_jax.data.scene import Scene, load_scene
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.kinds import views
 from msnerf_jax.models import decoder as decoder_lib
@@ -91,7 +92,7 @@ def stylize_scene_from_features(run_dir: str, style_paths: Sequence[str], out: s
   scene, data_config = runs_lib.scene_of(run)
   decoder_dir = decoder_dir or run.record["decoder"]
   decoder = load_decoder(decoder_dir)
-  stats, original, size = runs_lib.feature_painting(run, scene)
+  stats, original, size = feature_kind.feature_painting(run, scene)
   encoder = vgg.load_vgg_params()
   last = {"picture": None, "vector": None}  # stylize_scene goes style by style: one encoding each
 

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf.samplers import sampler_of
 from msnerf_jax.models.hash_trunk import HashTrunk
 from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
 
@@ -174,9 +175,9 @@ def init_multistyle_params(config, key: jax.Array,
   styles = jnp.zeros((1, config.style_dim), jnp.float32)
   init = lambda k: model.init(k, x, x, styles, method=lambda m, p, d, s: m(p, d, m.codes(s)))
   params = {}
-  grid = config.nerf.sampler == "grid"
+  sampler = sampler_of(config.nerf)
   for net, k in zip(("coarse", "fine"), jax.random.split(key)):
-    if grid and net == "coarse":
+    if net not in sampler.levels:
       continue
     params[net] = dict(init(k)["params"])
     if nerf_params is not None:
@@ -184,7 +185,7 @@ def init_multistyle_params(config, key: jax.Array,
       params[net]["trunk"] = jax.tree_util.tree_map(jnp.array, nerf_params[net]["trunk"])
       if config.density_aware:
         params[net] = start_from_density(params[net])
-  if grid:
+  if sampler.occupancy:
     params["occupancy"] = (occupancy.init_grid(config.nerf.grid_resolution)
                            if nerf_params is None else jnp.array(nerf_params["occupancy"]))
   return params

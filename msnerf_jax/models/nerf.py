@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf.samplers import sampler_of
 from msnerf_jax.nerf.encoding import encoded_size, positional_encoding
 from msnerf_jax.models.hash_trunk import HashTrunk, hash_trunk
 from msnerf_jax.models.layers import ConcatInputDense
@@ -103,7 +104,7 @@ def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:
   k_coarse, k_fine = jax.random.split(key)
   x = jnp.zeros((1, 3), jnp.float32)
   fine = model.init(k_fine, x, x)["params"]
-  if config.sampler == "grid":
+  if sampler_of(config).occupancy:
     return {"fine": fine, "occupancy": occupancy.init_grid(config.grid_resolution)}
   return {"coarse": model.init(k_coarse, x, x)["params"], "fine": fine}
 

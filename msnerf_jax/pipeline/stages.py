@@ -32,6 +32,7 @@ from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
@@ -203,9 +204,9 @@ def feature_config(s: Settings) -> config_lib.FeatureConfig:
 
 def _features_done(run_dir: str, steps: int) -> bool:
   """Trained to `steps`, with the statistics of its renders written (the trainer's last act)."""
-  from msnerf_jax.kinds.runs import RENDERED_STATS  # pylint: disable=g-import-not-at-top
   step = _checkpoint_step(run_dir)
-  return step >= steps and os.path.exists(os.path.join(run_dir, RENDERED_STATS.format(step=step)))
+  return step >= steps and os.path.exists(
+      os.path.join(run_dir, feature_kind.RENDERED_STATS.format(step=step)))
 
 
 def _run_features(out, decoder_dir, s: Settings, progress):
@@ -228,17 +229,14 @@ def _feature_renderer(out, styles, names, s: Settings):
   decoder's picture of the scene's features)."""
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import runs
-  from msnerf_jax.pipeline import videos as style_videos
-  from msnerf_jax.style import transfer as stylize
+  from msnerf_jax.kinds.renderers import style_rendering
   from msnerf_jax.style import vectors as styles_lib
   from msnerf_jax.data.stylized import style_name
   run, scene = runs.load_run_and_scene(os.path.join(out, "features"), "features")
-  stats, original, size = runs.feature_painting(run, scene)
+  table, size, render = style_rendering(run, scene, s.chunk or None)
   cache = {}
-  vectors = {styles_lib.ORIGINAL: original,
+  vectors = {**table,
              **{style_name(p): styles_lib.resolve_style(p, {}, cache, size) for p in styles}}
-  render = style_videos.feature_style_renderer(
-      run, scene, stylized_scenes.load_decoder(run.record["decoder"]), stats, s.chunk or None)
   return lambda c2w: render(c2w, [vectors[n] for n in names])
 
 
@@ -259,13 +257,13 @@ def _run_renders(out, styles, s: Settings, progress):
   from msnerf_jax.pipeline import videos as style_videos
   from msnerf_jax.style import vectors as styles_lib
   from msnerf_jax.data import video
-  from msnerf_jax.kinds.runs import load_run_and_scene, style_vectors
+  from msnerf_jax.kinds.renderers import style_rendering
+  from msnerf_jax.kinds.runs import load_run_and_scene
   run, scene = load_run_and_scene(os.path.join(out, "multistyle"), "multistyle")
-  vectors = style_vectors(run)
+  vectors, _, render = style_rendering(run, scene, s.chunk or None)
   names = list(vectors)
   poses = scene.path_poses(s.frames)
   folder = os.path.join(out, "renders")
-  render = style_videos.style_renderer(run, scene, s.chunk or None)
   # All styles at once per camera (one trunk pass): the side-by-side video and the grid.
   sweeps = [render(c2w, list(vectors.values()))
             for c2w in progress_bar(poses, desc="render styles", disable=not progress)]

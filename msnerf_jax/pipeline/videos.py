@@ -8,40 +8,7 @@ import numpy as np
 from msnerf_jax.style import vectors as styles_lib
 from msnerf_jax.data import video
 from msnerf_jax.core.progress import progress_bar
-
-# (camera: c2w [3, 4] or cameras.Camera, K style vectors [1024]) -> K images [K, H, W, 3].
-StyleRenderer = Callable[[np.ndarray, Sequence[np.ndarray]], np.ndarray]
-
-
-def style_renderer(run: Any, scene: Any, chunk: Optional[int] = None) -> StyleRenderer:
-  """Renders one camera of a loaded multi-style run in K styles at once (one trunk pass)."""
-  from msnerf_jax.kinds.views import render_styles  # pylint: disable=g-import-not-at-top
-  return lambda c2w, styles: render_styles(scene, run.params, run.config, c2w,
-                                           np.stack(styles), chunk)["rgb"]
-
-
-def feature_style_renderer(run: Any, scene: Any, decoder: Any, content_stats: Any,
-                           chunk: Optional[int] = None, grids: Optional[int] = None
-                           ) -> StyleRenderer:
-  """Renders one camera of a loaded feature run in K styles: one feature render, K AdaIN
-  maps and decodes by `decoder` (stylize.Decoder); content_stats (mean, std) [512]; on
-  `grids` cell grids (views.render_feature_styles'; None: its default). On
-  white-background (Blender) scenes the frames are put over white by the NeRF's opacity,
-  as the stylized views a multi-style run learns are."""
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.style.features import DEFAULT_GRIDS
-  from msnerf_jax.kinds.views import render_feature_styles, render_view
-  grids = grids or DEFAULT_GRIDS
-
-  def render(camera, styles):
-    frames = render_feature_styles(scene, run.params, run.config, camera, decoder,
-                                   content_stats, np.stack(styles), chunk, grids)
-    if not scene.white_background:
-      return frames
-    acc = render_view(scene, run.params["nerf"], run.config.nerf, camera,
-                      chunk)["accumulation"][..., None]
-    return frames * acc + (1.0 - acc)
-  return render
+from msnerf_jax.kinds.base import StyleRenderer
 
 
 def spaced_views(poses: Sequence[Any], n: int) -> List[Any]:

@@ -16,6 +16,7 @@ import numpy as np
 import optax
 
 from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.core import checkpoint as checkpoint_lib
 from msnerf_jax.core import files
 from msnerf_jax.kinds import runs as runs_lib
@@ -120,14 +121,14 @@ def feature_source(config: config_lib.AdainConfig):
 def render_content_features(source, progress: bool = False) -> Tuple[np.ndarray, np.ndarray]:
   """A feature run's relu4_1 maps of its scene's training views (views.render_feature_map,
   the background feature filling each cell), normalised by the run's content statistics
-  (runs.content_stats, what rendering normalises by). source: feature_source's (run, scene).
+  (feature_kind.content_stats, what rendering normalises by). source: feature_source's (run, scene).
 
   AdaIN towards a style's (mean, std) is then `n * std + mean`, exactly what
   feature_style.stylize_features gives the decoder when a view of the run is painted.
 
   Returns: (maps [N, h, w, 512] float16, statistics [2, 512] float32: mean, std)."""
   run, scene = source
-  mean, std = runs_lib.content_stats(run)
+  mean, std = feature_kind.content_stats(run)
   maps = [(views.render_feature_map(scene, run.params, run.config, int(i))["features"] - mean) / std
           for i in progress_bar(scene.split("train"), desc="feature maps", disable=not progress,
                                 leave=False)]

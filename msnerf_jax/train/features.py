@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.core import distributed
 from msnerf_jax.nerf import rays as rays_lib
@@ -67,11 +68,11 @@ def prepare_targets(run_dir: str, scene: Scene, config: FeatureConfig,
   """Writes the run's target cache and the scene's content statistics (pooled over every
   cell of every training view) unless they are there already."""
   path = os.path.join(run_dir, TARGETS)
-  if os.path.exists(path) and os.path.exists(os.path.join(run_dir, runs_lib.CONTENT_STATS)):
+  if os.path.exists(path) and os.path.exists(os.path.join(run_dir, feature_kind.CONTENT_STATS)):
     return
   views = scene.images[scene.split("train")]
   targets = view_targets(vgg.load_vgg_params(), views, config.stylize_scale, progress)
-  write_npy(os.path.join(run_dir, runs_lib.CONTENT_STATS), np.stack(pooled_stats(targets)))
+  write_npy(os.path.join(run_dir, feature_kind.CONTENT_STATS), np.stack(pooled_stats(targets)))
   write_npy(path, targets)
 
 
@@ -82,7 +83,7 @@ def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool =
                    ) -> Tuple[np.ndarray, np.ndarray]:
   """(mean [512], std [512]) of the field's rendered relu4_1 cells (views.render_feature_map)
   over up to STATS_VIEWS evenly spaced training views: the statistics stylizing normalises
-  by (runs.content_stats)."""
+  by (feature_kind.content_stats)."""
   from msnerf_jax.kinds import views  # pylint: disable=g-import-not-at-top
   train = scene.split("train")
   pick = train[np.linspace(0, len(train) - 1, min(len(train), STATS_VIEWS)).round().astype(int)]
@@ -92,9 +93,9 @@ def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool =
 
 
 def write_rendered_stats(run_dir: str, scene: Scene, progress: bool = False) -> str:
-  """Writes runs.RENDERED_STATS of the run's latest step unless it is there; returns it."""
+  """Writes feature_kind.RENDERED_STATS of the run's latest step unless it is there; returns it."""
   run = runs_lib.load_run(run_dir, KIND)
-  path = os.path.join(run_dir, runs_lib.RENDERED_STATS.format(step=run.step))
+  path = os.path.join(run_dir, feature_kind.RENDERED_STATS.format(step=run.step))
   if not os.path.exists(path):
     write_npy(path, np.stack(rendered_stats(run.params, run.config, scene, progress)))
   return path

@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.nerf.samplers import sampler_of
+from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core import distributed
@@ -244,7 +246,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   """
   nerf_run, scene, data = load_nerf_run(nerf_run_dir)
   config = dataclasses.replace(config, nerf=nerf_run.config)
-  if config.density_aware and config.nerf.sampler == "grid":
+  if config.density_aware and sampler_of(config.nerf).occupancy:
     raise UserError(f"{nerf_run_dir}: a density-aware model needs a NeRF run with the "
                     "hierarchical sampler (this one samples from its occupancy grid, which "
                     "cannot follow a density per style)")
@@ -259,7 +261,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
 
   def prepare():
     runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
-    runs_lib.save_style_vectors(run_dir, stylized.vectors)
+    multistyle_kind.save_style_vectors(run_dir, stylized.vectors)
   distributed.primary_first(prepare)
   train_idx = stylized.splits["train"]
   # [N, H, W, M, 3] uint8: one gather gives a pixel in every style.

@@ -9,6 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.kinds import runs
+from msnerf_jax.nerf.field_samples import apply_in_chunks
+from msnerf_jax.nerf.samplers import sampler_of
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core import distributed
 from msnerf_jax.eval import metrics
@@ -145,7 +147,7 @@ def refresh_grid(params, step, config: NerfConfig):
   field = NerfField(config)
 
   def density(points):
-    _, sigma = render_lib.apply_in_chunks(field, params["fine"], points[:, None],
+    _, sigma = apply_in_chunks(field, params["fine"], points[:, None],
                                           jnp.zeros_like(points)[:, None], REFRESH_CHUNK)
     return jax.nn.relu(sigma[:, 0])
 
@@ -196,7 +198,7 @@ def not_trained(params):
 def init_state(config: NerfConfig) -> state_lib.TrainState:
   params = init_nerf_params(config, jax.random.PRNGKey(config.seed))
   schedule = state_lib.exponential_lr(config.lr_init, config.lr_final, config.lr_decay_steps)
-  if config.sampler == "grid":  # instant-NGP's Adam: beta2 0.99, eps 1e-15.
+  if sampler_of(config).occupancy:  # instant-NGP's Adam: beta2 0.99, eps 1e-15.
     return state_lib.create_state(params, state_lib.adam(schedule, not_trained, b2=0.99,
                                                          eps=1e-15))
   return state_lib.create_state(params, state_lib.adam(schedule))
@@ -219,7 +221,7 @@ def scene_box(scene: Scene) -> float:
 def resolve_config(config: NerfConfig, scene: Scene) -> NerfConfig:
   """The config with what depends on the scene filled in (scene_box 0 -> scene_box(scene)
   when the hash trunk or the grid sampler uses it), checked (config.check_nerf_config)."""
-  if config.scene_box == 0 and (config.trunk == "hash" or config.sampler == "grid"):
+  if config.scene_box == 0 and (config.trunk == "hash" or sampler_of(config).occupancy):
     config = dataclasses.replace(config, scene_box=scene_box(scene))
   config_lib.check_nerf_config(config)
   return config

@@ -6,7 +6,7 @@ so that a full frame can be abandoned between bands when a newer request arrives
 is one jitted call of a fixed size per level, so a level compiles once (`warm_up`).
 
 A feature run's frame is its feature map of the camera stylized and painted by its decoder
-(`style_videos.feature_style_renderer`, AdaIN in 3D): any style image, blends and strengths
+(its kind's style renderer, `kinds.features.style_renderer`: AdaIN in 3D): any style image, blends and strengths
 at once; it is drawn whole (the decoder reads the whole map), so only the steps before and
 after the feature render can be abandoned.
 """
@@ -21,16 +21,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.nerf import render as render_lib
-from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.style import vectors as styles_lib
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import ORIGINAL, style_name
 from msnerf_jax.style.vectors import style_vector_of
 from msnerf_jax.core.errors import UserError
-from msnerf_jax.models.multistyle import MultistyleField
-from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.kinds.runs import Run, style_vectors
+from msnerf_jax.kinds.registry import get_kind
+from msnerf_jax.kinds.renderers import style_rendering
+from msnerf_jax.kinds.runs import Run
 from msnerf_jax.viewer import camera as camera_lib
 
 LEVELS = ("low", "full")
@@ -84,26 +83,22 @@ class Frames:
     self.run, self.scene = run, scene
     self._painted_size = None  # what a style picture is cover-cropped to (feature runs).
     self._paint = None
-    if run.kind == "features":
-      # pylint: disable=g-import-not-at-top
-      from msnerf_jax.kinds import runs
-      from msnerf_jax.pipeline import videos as style_videos
-      from msnerf_jax.style import transfer as stylize
-      stats, original, self._painted_size = runs.feature_painting(run, scene)
-      self.config = run.config.nerf
-      # Its "original" is the scene's own statistics: the strength slider blends towards it.
-      self.styles = {ORIGINAL: original}
-      decoder = stylized_scenes.load_decoder(decoder_dir or run.record["decoder"])
-      self._paint = {level: style_videos.feature_style_renderer(
-          run, scene, decoder, stats, grids=1 if level == "low" else grids) for level in LEVELS}
-    elif run.kind == "multistyle":
-      self.field, self.config = MultistyleField(run.config), run.config.nerf
-      self.styles: Dict[str, np.ndarray] = style_vectors(run)
-    elif run.kind == "nerf":
-      self.field, self.config = NerfField(run.config), run.config
-      self.styles = {}
-    else:
+    kind = get_kind(run.kind)
+    if kind.nerf_config is None:
       raise UserError(f"{run.run_dir}: a {run.kind!r} run has no scene to view")
+    self.config = kind.nerf_config(run.config)
+    self.styles: Dict[str, np.ndarray] = {}
+    if kind.paints_any_style:
+      # Its "original" is the scene's own statistics: the strength slider blends towards it.
+      # Low frames, drawn while the camera moves, are painted on one cell grid.
+      self._paint = {level: style_rendering(run, scene, None, 1 if level == "low" else grids,
+                                            decoder_dir) for level in LEVELS}
+      self.styles, self._painted_size = self._paint["full"][:2]
+      self._paint = {level: paint[2] for level, paint in self._paint.items()}
+    else:
+      self.field = kind.field(run.config)
+      if kind.style_table is not None:
+        self.styles, self._painted_size = kind.style_table(run, scene)
     if style_paths and not self.styles:
       raise UserError(f"--styles: {run.run_dir} is a NeRF run, it has no styles")
     # Given style images first: the page opens in the first one (named for its file, apart

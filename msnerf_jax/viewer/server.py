@@ -20,6 +20,7 @@ import viser
 from msnerf_jax.data.camera_path import camera_path_dict, read_camera_path
 from msnerf_jax.data.stylized import ORIGINAL
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.kinds.registry import KINDS, get_kind
 from msnerf_jax.core.files import atomic_write_bytes
 from msnerf_jax.viewer import camera as camera_lib
 from msnerf_jax.viewer.frames import Frames, Request, StyleChoice, View
@@ -28,7 +29,6 @@ from msnerf_jax.viewer.scheduler import Scheduler
 KEYFRAMES = "camera_path.json"
 UPLOAD_PREFIX = "upload: "
 MAX_UPLOADS_PER_CLIENT = 8
-VIEWABLE = ("nerf", "multistyle", "features")
 
 
 def check_port(host: str, port: int) -> None:
@@ -189,7 +189,7 @@ class ViewerServer:
             "strength", 0.0, 1.0, 0.01, 1.0, disabled=ORIGINAL not in frames.styles,
             hint="0: the original scene, 1: the full style" if ORIGINAL in frames.styles
             else "this run has no 'original' style to blend from")
-        if frames.run.kind == "features":
+        if get_kind(frames.run.kind).paints_any_style:
           gui.add_markdown("A feature field (AdaIN in 3D): it paints any style image. "
                            "Upload one, or give `--styles` to `msnerf view`.")
         state.gui["upload"] = gui.add_upload_button(
@@ -322,9 +322,10 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import runs
   kind = runs.read_run_file(run_dir)["kind"]
-  if kind not in VIEWABLE:
+  viewable = [name for name, k in KINDS.items() if k.nerf_config is not None]
+  if get_kind(kind).nerf_config is None:
     raise UserError(f"{run_dir}: a {kind!r} run has no scene to view (view a "
-                    f"{' or '.join(repr(k) for k in VIEWABLE)} run)")
+                    f"{' or '.join(repr(k) for k in viewable)} run)")
   check_port(host, port)
   run = runs.load_run(run_dir, kind)
   scene = runs.scene_of(run)[0]

@@ -1,7 +1,7 @@
 """How much of AdaIN's frame-to-frame change comes from the relu4_1 cell grid alone.
 
-  python experiments/decoder_shift.py --decoder ADAIN_RUN --data SCENE [--downscale 8] \
-      [--scale 4] [--views 4] --styles A.jpg B.jpg ... [--json OUT.json]
+  python experiments/studies/decoder_shift/decoder_shift.py --decoder ADAIN_RUN --data SCENE \
+      [--downscale 8] [--scale 4] [--views 4] --styles A.jpg B.jpg ... [--json OUT.json]
 
 Per-frame AdaIN encodes a frame to relu4_1 cells of 8 x 8 pixels (of the frame enlarged by
 the stylize scale) and the decoder paints from those cells. Shift the frame by s pixels: a
@@ -28,18 +28,16 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
-import numpy as np
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top,wrong-import-position
 import jax
 import jax.numpy as jnp
-from msnerf_jax import adain, metrics, stylize
-from msnerf_jax.config import DataConfig
+import numpy as np
+
+from msnerf_jax.style import adain
+from msnerf_jax.eval import metrics
+from msnerf_jax.style import transfer as stylize
+from msnerf_jax.core.config import DataConfig
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.models import decoder as decoder_lib

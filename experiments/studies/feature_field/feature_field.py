@@ -1,8 +1,10 @@
 """The feature field (AdaIN in 3D) against per-frame AdaIN, with the same decoder and scale.
 
-  python experiments/feature_field.py --features FEATURE_RUN --styles A.jpg B.jpg ... \
-      [--frames 40] [--decoder ADAIN_RUN] [--stats rendered|encoded] [--out DIR]
-  python experiments/feature_field.py --features FEATURE_RUN --only-alpha0 [--heldout 5] ...
+  python experiments/studies/feature_field/feature_field.py --features FEATURE_RUN \
+      --styles A.jpg B.jpg ... [--frames 40] [--decoder ADAIN_RUN] [--stats rendered|encoded] \
+      [--out DIR]
+  python experiments/studies/feature_field/feature_field.py --features FEATURE_RUN --only-alpha0 \
+      [--heldout 5] ...
 
 Along the scene's render path (its NeRF renders the geometry and the photo-real frames):
   per-frame:  each photo-real frame stylized on its own (stylize.stylize_image, the run's
@@ -10,7 +12,7 @@ Along the scene's render path (its NeRF renders the geometry and the photo-real 
   feature:    the feature field's render of the frame, AdaIN with the scene's pooled
               statistics, the same decoder.
 For each style: the style distance to the style image (AdaIN statistics, relu1_1..relu4_1),
-warped RMSE and LPIPS at k = 1 and 7 (msnerf_jax.consistency), and the AdaIN content loss
+warped RMSE and LPIPS at k = 1 and 7 (msnerf_jax.eval.consistency), and the AdaIN content loss
 (relu4_1 of the frame, enlarged to the stylize scale, against AdaIN(encoder features of the
 photo-real frame, style)). Then: how distinct the styles stay (mean pairwise AdaIN distance
 between the frames of different styles), alpha = 0 (decoding the rendered features with the
@@ -26,22 +28,23 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top
-import jax
-import jax.numpy as jnp
-from msnerf_jax import adain, consistency, metrics, stylize, video, views
+from msnerf_jax.style import adain
+from msnerf_jax.eval import consistency
+from msnerf_jax.eval import metrics
+from msnerf_jax.style import transfer as stylize
+from msnerf_jax.data import video
+from msnerf_jax.kinds import views
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.feature_style import painted_size, style_vector_of_stats
+from msnerf_jax.style.features import painted_size, style_vector_of_stats
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import CONTENT_STATS, content_stats, load_run, load_run_and_scene
+from msnerf_jax.kinds.runs import CONTENT_STATS, content_stats, load_run, load_run_and_scene
 
 
 def whiten(frame, acc, white):

@@ -1,12 +1,13 @@
 """How steady are the relu4_1 maps the decoder paints from, before it paints them?
 
-  python experiments/feature_map_consistency.py --features FEATURE_RUN [--frames 15] \
-      [--components 32] [--per-side 2] [--json OUT.json]
+  python experiments/studies/feature_map_consistency/feature_map_consistency.py \
+      --features FEATURE_RUN [--frames 15] [--components 32] [--per-side 2] [--json OUT.json]
 
-feature_field.py measures the decoded frames: along fern's path the feature field's warped
-RMSE is 0.95-1.13x per-frame AdaIN's with a decoder fine-tuned on the field. This script
-asks where that comes from. Along the same render path (same frames, same NeRF depth for
-the warp, consistency.consistency) it compares the maps each method hands the decoder:
+studies/feature_field/feature_field.py measures the decoded frames: along fern's path the
+feature field's warped RMSE is 0.95-1.13x per-frame AdaIN's with a decoder fine-tuned on the
+field. This script asks where that comes from. Along the same render path (same frames, same
+NeRF depth for the warp, consistency.consistency) it compares the maps each method hands the
+decoder:
   feature-field:   the field's rendered relu4_1 cells, normalised by the run's content
                    statistics (what stylize_features normalises);
   adain-per-frame: the encoder's relu4_1 cells of the NeRF's photo-real frame (enlarged by
@@ -25,22 +26,21 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top,wrong-import-position
-import jax
-import jax.numpy as jnp
-from msnerf_jax import adain, consistency, stylize, views
+from msnerf_jax.style import adain
+from msnerf_jax.eval import consistency
+from msnerf_jax.style import transfer as stylize
+from msnerf_jax.kinds import views
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.feature_style import CELL
+from msnerf_jax.style.features import CELL
 from msnerf_jax.models import vgg
-from msnerf_jax.runs import content_stats, load_run, load_run_and_scene
+from msnerf_jax.kinds.runs import content_stats, load_run, load_run_and_scene
 
 
 def encoder_cells(encoder, rgb, scale):

@@ -3,7 +3,7 @@ how many of a ray's march steps land in occupied cells, and how much light is le
 end of the ray (when it never becomes opaque, early termination stops nothing).
 
 Usage:
-  python experiments/grid_rays.py RUN [--split test] [--stride 37]
+  python experiments/studies/grid_rays/grid_rays.py RUN [--split test] [--stride 37]
 
 Takes every stride-th ray of the first held-out view and evaluates the field at all of its
 march steps.
@@ -17,8 +17,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax import occupancy, runs
-from msnerf_jax import render as render_lib
+from msnerf_jax.nerf import occupancy
+from msnerf_jax.kinds import runs
+from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.models.nerf import NerfField
 
 

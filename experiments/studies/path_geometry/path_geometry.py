@@ -7,7 +7,8 @@ frames at k = 1 and 7, plus the share of pixels the NeRF renders opaque (what th
 AdaIN baseline keeps stylized on Blender scenes). Fog in empty space inflates the counted
 share with pixels that are not the object.
 
-Usage: python experiments/path_geometry.py --run NERF_RUN [NERF_RUN ...] [--frames 40]
+Usage: python experiments/studies/path_geometry/path_geometry.py --run NERF_RUN [NERF_RUN ...]
+    [--frames 40]
 """
 
 import argparse
@@ -18,9 +19,9 @@ import time
 import jax
 import numpy as np
 
-from msnerf_jax import consistency
-from msnerf_jax.runs import load_run_and_scene
-from msnerf_jax import views
+from msnerf_jax.eval import consistency
+from msnerf_jax.kinds.runs import load_run_and_scene
+from msnerf_jax.kinds import views
 
 
 def main():

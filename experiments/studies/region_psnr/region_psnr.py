@@ -2,7 +2,7 @@
 object (alpha 255), empty space (alpha 0) and the partly covered edge pixels between.
 
 Usage:
-  python experiments/region_psnr.py RUN [RUN ...]
+  python experiments/studies/region_psnr/region_psnr.py RUN [RUN ...]
 
 Renders every val view of each run (composited over white, as evaluation does) and pools
 the squared errors of all views per region. Whole-image PSNR rewards a NeRF that explains a
@@ -17,8 +17,9 @@ import platform
 import jax
 import numpy as np
 
-from msnerf_jax import metrics, runs
-from msnerf_jax.views import render_view
+from msnerf_jax.eval import metrics
+from msnerf_jax.kinds import runs
+from msnerf_jax.kinds.views import render_view
 
 
 def region_errors(run, scene):

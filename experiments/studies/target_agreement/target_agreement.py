@@ -1,10 +1,11 @@
 """How well do the stylized views agree with each other? An upper bound for a 3D model.
 
-  python experiments/target_agreement.py --nerf NERF_RUN --stylized DIR [--multistyle RUN]
+  python experiments/studies/target_agreement/target_agreement.py --nerf NERF_RUN --stylized DIR \
+      [--multistyle RUN]
 
 Each held-out view t of the stylized dataset is predicted from the training views alone,
 without any model: the `--neighbours` training cameras nearest to t are warped onto t with the
-NeRF's rendered depth (msnerf_jax.consistency.warp: lifted to 3D, reprojected, depth test,
+NeRF's rendered depth (msnerf_jax.eval.consistency.warp: lifted to 3D, reprojected, depth test,
 opacity > 0.5 in both), and their colours are averaged per pixel. On the pixels that at least
 one neighbour covers, the script reports the PSNR of
   nearest:   the nearest training view alone,
@@ -27,11 +28,9 @@ import time
 import numpy as np
 from tqdm.auto import tqdm
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-# pylint: disable=g-import-not-at-top
-from msnerf_jax import consistency, views
-from msnerf_jax.runs import load_run
+from msnerf_jax.eval import consistency
+from msnerf_jax.kinds import views
+from msnerf_jax.kinds.runs import load_run
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
 
