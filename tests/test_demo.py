@@ -48,6 +48,7 @@ def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
   first = capsys.readouterr().out
   for stage in STAGES:
     assert f"{stage}: done in" in first
+  run_readme_python(out)  # the README's Python example on the demo's multi-style run
   renders = os.path.join(out, "renders")
   for name in OUTPUTS:
     assert os.path.getsize(os.path.join(renders, name)) > 0
@@ -107,3 +108,42 @@ def test_help_describes_every_option_with_its_default(verb):
     assert action.help, action.dest
     if not action.required:
       assert f"{' '.join(action.help.split())} (default: " in text, action.dest
+
+
+def code_blocks(path, language):
+  """The fenced code blocks of one language in a Markdown file, in order."""
+  import re  # pylint: disable=g-import-not-at-top
+  text = open(os.path.join(ROOT, path)).read()
+  return re.findall(rf"```{language}\n(.*?)```", text, re.S)
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOCUMENTED = ("README.md", "docs/getting-started.md")
+
+
+def run_readme_python(demo_out):
+  """Runs the README's Python blocks on a finished demo folder (they name runs/demo)."""
+  blocks = code_blocks("README.md", "python")
+  assert blocks, "the README has a Python example"
+  for block in blocks:
+    exec(compile(block.replace("runs/demo", demo_out), "README.md", "exec"), {})  # pylint: disable=exec-used
+
+
+@pytest.mark.parametrize("path", DOCUMENTED)
+def test_every_documented_command_parses(path):
+  """Every `msnerf ...` line of the README's and the getting-started page's shell blocks is
+  a command the CLI accepts as written (verbs and options exist); every `pip install` names
+  this checkout, not a registry package."""
+  import shlex  # pylint: disable=g-import-not-at-top
+  parser = cli.build_parser()
+  commands = 0
+  for block in code_blocks(path, "bash"):
+    for line in block.replace("\\\n", " ").splitlines():
+      for command in line.split("#")[0].split("&&"):
+        argv = shlex.split(command)
+        if argv[:2] == ["pip", "install"]:
+          assert any(a.startswith(".") for a in argv[2:]) or "jax[cuda12]" in argv, command
+        if argv[:1] == ["msnerf"]:
+          parser.parse_args(argv[1:])  # argparse exits (a test failure) on a wrong option
+          commands += 1
+  assert commands >= 2

@@ -126,7 +126,7 @@ def test_distortion_trains_with_the_grid_sampler(tiny_blender):
   final = {}
   for weight in (0.0, 1.0):
     config = dataclasses.replace(base, distortion_weight=weight)
-    config_lib.check_nerf_config(config)
+    config.validate()
     state = nerf.init_state(config)
     step = jax.jit(nerf.train_step, static_argnums=(2, 3))
     for _ in range(20):
@@ -241,7 +241,7 @@ def test_presets_record_the_background_choice():
   fast_blender, fast_llff = (config_lib.nerf_preset("fast", f) for f in ("blender", "llff"))
   assert fast_blender.random_background and fast_blender.distortion_weight == 0.0
   assert not fast_llff.random_background and fast_llff.distortion_weight > 0
-  config_lib.check_nerf_config(fast_llff)
+  fast_llff.validate()
   # A run.json saved before the fields existed loads with them off (what it was trained with).
   saved = config_lib.to_dict(TINY)
   del saved["random_background"], saved["distortion_weight"]

@@ -15,7 +15,7 @@ import msnerf_jax
 from msnerf_jax.nerf import occupancy
 from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.nerf import render as render_lib
-from msnerf_jax.core.config import DataConfig, NerfConfig, check_nerf_config, nerf_preset
+from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.nerf.hash_encoding import hash_encode, level_resolutions
@@ -260,7 +260,7 @@ def test_two_devices_give_the_same_fast_steps_as_one(tiny_blender):
 ])
 def test_a_config_that_cannot_work_is_named(change, message):
   with pytest.raises(UserError, match=message):
-    check_nerf_config(dataclasses.replace(NerfConfig(), **change))
+    dataclasses.replace(NerfConfig(), **change).validate()
 
 
 # ----------------------------------------------------------------------------- multi-style

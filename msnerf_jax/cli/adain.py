@@ -123,8 +123,6 @@ def _train(args):
       sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
       keep_checkpoints=max(1, args.keep_checkpoints))
   config = start_config(args, "adain", built)
-  if args.lr <= 0 or not args.lr < float("inf"):
-    raise UserError(f"--lr {args.lr}: must be positive")
   train_adain.train(config, args.content, args.styles, args.out, progress=not args.no_progress)
 
 

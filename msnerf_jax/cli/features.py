@@ -79,8 +79,6 @@ def register(commands, formatter):
 def cmd_train(args):
   from msnerf_jax.train import features  # pylint: disable=g-import-not-at-top
   shows = start_processes(args)
-  if not args.lr > 0:
-    raise UserError(f"--lr {args.lr}: must be positive")
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
   built = config_lib.override(config_lib.FeatureConfig(

@@ -208,13 +208,6 @@ def cmd_train(args):
   from msnerf_jax.data.stylized import load_stylized
   from msnerf_jax.train import multistyle
   shows = start_processes(args)
-  if args.steps < 1:
-    raise UserError(f"--steps {args.steps}: must be >= 1")
-  if not args.lr > 0:
-    raise UserError(f"--lr {args.lr}: must be positive")
-  for flag in ("rgb_extra_layers", "density_extra_layers"):
-    if getattr(args, flag) < 0:
-      raise UserError(f"--{flag.replace('_', '-')} {getattr(args, flag)}: must be >= 0")
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
   built = config_lib.override(config_lib.MultistyleConfig(

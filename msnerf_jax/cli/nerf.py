@@ -117,21 +117,9 @@ def cmd_train(args):
       **config_overrides(args, config_lib.DataConfig))
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  for flag in ("steps", "net_depth", "net_width", "n_coarse", "n_fine", "batch_rays",
-               "checkpoint_every", "keep_checkpoints", "lr_decay_steps", "render_chunk",
-               "llff_holdout"):
-    value = getattr(args, flag)
-    if value is not None and value < 1:
-      raise UserError(f"--{flag.replace('_', '-')} {value}: must be >= 1")
-  for flag in ("lr_init", "lr_final"):
-    value = getattr(args, flag)
-    if value is not None and not value > 0:
-      raise UserError(f"--{flag.replace('_', '-')} {value}: must be positive")
-  if args.distortion_weight is not None and not args.distortion_weight >= 0:
-    raise UserError(f"--distortion-weight {args.distortion_weight}: must be >= 0")
   if (args.stylized is None) != (args.style is None):
     raise UserError("--stylized and --style go together (a dataset folder and one of its styles)")
-  scene, data_config = load_scene(data_config)
+  scene, data_config = load_scene(data_config.validate())
   style = None
   if args.stylized is not None:
     from msnerf_jax.data.stylized import style_views

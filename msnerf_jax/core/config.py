@@ -22,6 +22,12 @@ class DataConfig:
   # or "object" (centred on the point the cameras look at, bounds from the data).
   layout: str = "auto"
 
+  def validate(self) -> "DataConfig":
+    """The config itself, or UserError naming the first setting that cannot work (the format
+    and layout names are checked by the scene loaders, which know them)."""
+    check_at_least(self, ("llff_holdout",))
+    return self
+
 
 @dataclasses.dataclass(frozen=True)
 class NerfConfig:
@@ -81,6 +87,35 @@ class NerfConfig:
   keep_checkpoints: int = 3
   render_chunk: int = 4096  # rays per jitted rendering call: bounds memory whatever the image size.
   mlp_chunk: int = 8192  # samples per MLP call inside a step (cache-sized matmuls; 0 = all).
+
+  def validate(self) -> "NerfConfig":
+    """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
+    that cannot work: the one place a NerfConfig's values are refused."""
+    check_at_least(self, ("steps", "net_depth", "net_width", "n_coarse", "n_fine", "batch_rays",
+                          "checkpoint_every", "keep_checkpoints", "lr_decay_steps",
+                          "render_chunk"))
+    check_positive(self, ("lr_init", "lr_final"))
+    if not self.distortion_weight >= 0:
+      bad_setting(self, "distortion_weight", "must be >= 0")
+    bad = functools.partial(bad_setting, self)
+    if self.trunk not in TRUNKS:
+      bad("trunk", f"unknown trunk (choose from {', '.join(TRUNKS)})")
+    if self.sampler not in SAMPLERS:
+      bad("sampler", f"unknown sampler (choose from {', '.join(SAMPLERS)})")
+    if self.trunk == "hash":
+      check_hash_settings(self)
+    if self.scene_box < 0:
+      bad("scene_box", "must be >= 0 (0 = from the scene)")
+    if self.sampler == SAMPLERS[1]:  # the occupancy grid's settings
+      check_at_least(self, ("grid_resolution", "march_steps", "march_segments",
+                            "samples_per_ray", "grid_every"))
+      if not 0.0 < self.grid_decay <= 1.0:
+        bad("grid_decay", "must be in (0, 1]")
+      if self.grid_threshold < 0:
+        bad("grid_threshold", "must be >= 0")
+      if self.raw_noise_std > 0:
+        bad("raw_noise_std", "the occupancy-grid sampler adds no density noise (use 0)")
+    return self
 
 
 PRESETS = ("paper", "cpu", "fast")
@@ -162,9 +197,24 @@ TRUNKS = ("mlp", "hash")
 SAMPLERS = ("hierarchical", "grid")
 
 
-def bad_setting(config: Any, name: str, problem: str) -> None:
-  """Raises UserError `--NAME VALUE: problem` (the option that sets config.NAME)."""
-  raise UserError(f"--{name.replace('_', '-')} {getattr(config, name)}: {problem}")
+def bad_setting(config: Any, name: str, problem: str, flag: Optional[str] = None) -> None:
+  """Raises UserError `--NAME VALUE: problem` (the option that sets config.NAME; `flag`
+  where the command line names it otherwise, e.g. --lr for lr_init)."""
+  raise UserError(f"--{(flag or name).replace('_', '-')} {getattr(config, name)}: {problem}")
+
+
+def check_at_least(config: Any, names, low: int = 1) -> None:
+  """bad_setting for the first of `names` below `low` (an integer setting)."""
+  for name in names:
+    if getattr(config, name) < low:
+      bad_setting(config, name, f"must be >= {low}")
+
+
+def check_positive(config: Any, names, flag: Optional[str] = None) -> None:
+  """bad_setting for the first of `names` that is not a finite number > 0."""
+  for name in names:
+    if not 0 < getattr(config, name) < float("inf"):
+      bad_setting(config, name, "must be positive", flag)
 
 
 def check_hash_settings(config: Any) -> None:
@@ -181,28 +231,8 @@ def check_hash_settings(config: Any) -> None:
                                         f"{config.hash_min_res})")
 
 
-def check_nerf_config(config: NerfConfig) -> None:
-  """UserError naming the first setting of a NerfConfig that cannot work."""
-  bad = functools.partial(bad_setting, config)
-  if config.trunk not in TRUNKS:
-    bad("trunk", f"unknown trunk (choose from {', '.join(TRUNKS)})")
-  if config.sampler not in SAMPLERS:
-    bad("sampler", f"unknown sampler (choose from {', '.join(SAMPLERS)})")
-  if config.trunk == "hash":
-    check_hash_settings(config)
-  if config.scene_box < 0:
-    bad("scene_box", "must be >= 0 (0 = from the scene)")
-  if config.sampler == "grid":
-    for name in ("grid_resolution", "march_steps", "march_segments", "samples_per_ray",
-                 "grid_every"):
-      if getattr(config, name) < 1:
-        bad(name, "must be >= 1")
-    if not 0.0 < config.grid_decay <= 1.0:
-      bad("grid_decay", "must be in (0, 1]")
-    if config.grid_threshold < 0:
-      bad("grid_threshold", "must be >= 0")
-    if config.raw_noise_std > 0:
-      bad("raw_noise_std", "the occupancy-grid sampler adds no density noise (use 0)")
+FEATURE_LOSSES = ("mse", "l1")  # FeatureConfig.loss.
+DECODE_TARGETS = ("photo", "encoder")  # FeatureConfig.decode_target.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,6 +277,30 @@ class FeatureConfig:
   seed: int = 0
   checkpoint_every: int = 500
   keep_checkpoints: int = 3
+
+  def validate(self) -> "FeatureConfig":
+    """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
+    that cannot work (how many devices the patches split over is the trainer's check)."""
+    scale = self.stylize_scale
+    if isinstance(scale, bool) or not isinstance(scale, int) or scale < 1:
+      bad_setting(self, "stylize_scale", "must be a whole number >= 1")
+    check_at_least(self, ("width",), 0)
+    check_at_least(self, ("dim", "rays_per_cell", "batch_cells", "top_k", "steps"))
+    check_positive(self, ("lr_init",), "lr")
+    if self.loss not in FEATURE_LOSSES:
+      bad_setting(self, "loss", f"unknown (choose from {', '.join(FEATURE_LOSSES)})")
+    if not self.decode_weight >= 0:
+      bad_setting(self, "decode_weight", "must be >= 0")
+    if self.decode_weight > 0:
+      if self.decode_target not in DECODE_TARGETS:
+        bad_setting(self, "decode_target", f"unknown (choose from {', '.join(DECODE_TARGETS)})")
+      if self.decode_cells < 3:
+        bad_setting(self, "decode_cells", "must be >= 3 (a cell's margin is left out on every "
+                                          "side)")
+      if self.decode_patches < 1:
+        bad_setting(self, "decode_patches", "must be a positive multiple of the devices")
+    check_hash_settings(self)
+    return self
 
 
 def override(config: T, **overrides: Any) -> T:
@@ -307,6 +361,10 @@ def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Op
 
 
 SHIFT_SOURCES = ("photo", "features")  # AdainConfig.shift_source.
+UPSAMPLE_MODES = ("nearest", "bilinear")  # AdainConfig.upsample (models/decoder.py's modes).
+# The smallest crop the shift loss works on: a relu4_1 cell (8 pixels), the largest shift's
+# margin (7 + 1) on both sides, and a cell to compare.
+SHIFT_MIN_SIZE = 8 + 2 * 8 + 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -330,7 +388,7 @@ class AdainConfig:
   # Shift consistency (beyond the AdaIN paper; off at 0): weight of the pixel MSE between the
   # decode of a crop moved by a random sub-cell shift (1-7 pixels in x and y, a relu4_1 cell is 8)
   # and the same window of the unmoved crop's decode, away from the crop's borders. Strokes then
-  # follow the content instead of the encoder's cell grid (experiments/decoder_shift.py).
+  # follow the content instead of the encoder's cell grid (experiments/studies/decoder_shift/decoder_shift.py).
   shift_weight: float = 0.0
   # What the moved crop's relu4_1 map is: "photo", the moved crop encoded again (the whole
   # encode-decode chain, per-frame AdaIN's case: the encoder's aliasing included); "features",
@@ -344,6 +402,26 @@ class AdainConfig:
   # then learns to paint the field's own features, which are softer than one photo's.
   content_features: str = ""
   feature_share: float = 0.5
+
+  def validate(self) -> "AdainConfig":
+    """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
+    that cannot work (the content folders are the trainer's check)."""
+    if self.upsample not in UPSAMPLE_MODES:
+      bad_setting(self, "upsample", f"choose from {', '.join(UPSAMPLE_MODES)}")
+    if self.size < 16 or self.size % 8:
+      bad_setting(self, "size", "must be a multiple of 8, at least 16")
+    check_at_least(self, ("batch", "steps"))
+    check_positive(self, ("lr",))
+    if not 0.0 <= self.shift_weight < float("inf"):
+      bad_setting(self, "shift_weight", "must be a number >= 0")
+    if self.shift_source not in SHIFT_SOURCES:
+      bad_setting(self, "shift_source", f"choose from {', '.join(SHIFT_SOURCES)}")
+    if self.shift_weight > 0 and self.size < SHIFT_MIN_SIZE:
+      bad_setting(self, "size", f"the shift loss needs crops of at least {SHIFT_MIN_SIZE} "
+                                "pixels")
+    if self.content_features and not 0.0 < self.feature_share <= 1.0:
+      bad_setting(self, "feature_share", "must be in (0, 1]")
+    return self
 
 
 @dataclasses.dataclass(frozen=True)
@@ -374,3 +452,11 @@ class MultistyleConfig:
   seed: int = 0
   checkpoint_every: int = 500
   keep_checkpoints: int = 3
+
+  def validate(self) -> "MultistyleConfig":
+    """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
+    that cannot work (the patch loss against the scene's size is the trainer's check)."""
+    check_at_least(self, ("steps",))
+    check_positive(self, ("lr_init",), "lr")
+    check_at_least(self, ("rgb_extra_layers", "density_extra_layers"), 0)
+    return self

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-UPSAMPLE_MODES = ("nearest", "bilinear")
+from msnerf_jax.core.config import UPSAMPLE_MODES  # pylint: disable=unused-import
 # Output channels of the convs; "U" is a x2 upsampling (docs/method.md "Decoder").
 DECODER_LAYOUT = (256, "U", 256, 256, 256, 128, "U", 128, 64, "U", 64, 3)
 

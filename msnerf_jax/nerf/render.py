@@ -17,6 +17,12 @@ from msnerf_jax.nerf.field_samples import FieldFn
 from msnerf_jax.nerf.samplers import sampler_of
 
 
+def sampling_config(config):
+  """The NerfConfig that holds the sampling settings: `config` itself, or the NeRF config a
+  run's config holds (a MultistyleConfig's or FeatureConfig's `.nerf`)."""
+  return getattr(config, "nerf", config)
+
+
 def draw_randomness(key: jax.Array, n_rays: int, config, train: bool = True
                     ) -> Dict[str, jnp.ndarray]:
   """All random numbers one training batch of rays needs, drawn up front (the sampler's).
@@ -60,7 +66,8 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
       field_in_chunks).
     params: {"coarse": ..., "fine": ...}.
     rays: ray_bundle dict, leading shape [R].
-    config: the NerfConfig with the sampling settings.
+    config: the NerfConfig with the sampling settings, or a run's config holding one
+      (sampling_config).
     randomness: from draw_randomness; empty/None renders deterministically (evaluation).
     background: [R, 3] colours both levels are composited over (replaces white_background),
       or None.
@@ -70,6 +77,7 @@ def render_rays(field, params, rays: Dict[str, jnp.ndarray], config,
     with a leading [M] when conditioned ({"fine"} alone with the grid sampler).
   """
   randomness = randomness or {}
+  config = sampling_config(config)
   chex.assert_rank(rays["origins"], 2)
   if conditioning is not None:
     chex.assert_rank(conditioning, 2)
@@ -165,6 +173,7 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     numpy dict of rgb [..., 3], depth, disparity, accumulation [...] (fine network), each
     with a leading [M] when `styles` is given.
   """
+  config = sampling_config(config)
   chunk = chunk or config.render_chunk
   sampler = sampler_of(config)
   config = sampler.render_config(config)

@@ -480,8 +480,6 @@ def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence
     if not content_dirs:
       raise UserError("--content: give at least one content folder (or --content-features)")
     return None
-  if not 0.0 < config.feature_share <= 1.0:
-    raise UserError(f"--feature-share {config.feature_share}: must be in (0, 1]")
   if feature_batch(config) < config.batch and not content_dirs:
     raise UserError(f"--content: needed for the photo share of each batch "
                     f"(or --feature-share 1)")
@@ -507,20 +505,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   content files, for evaluation). A NaN/inf loss stops training with a UserError naming
   the step; the last good checkpoint is kept.
   """
-  if config.upsample not in decoder_lib.UPSAMPLE_MODES:
-    raise UserError(f"--upsample {config.upsample}: choose from {', '.join(decoder_lib.UPSAMPLE_MODES)}")
-  if config.size < 16 or config.size % 8:
-    raise UserError(f"--size {config.size}: must be a multiple of 8, at least 16")
-  if config.batch < 1 or config.steps < 1:
-    raise UserError("--batch and --steps must be positive")
-  if not 0.0 <= config.shift_weight < float("inf"):
-    raise UserError(f"--shift-weight {config.shift_weight}: must be a number >= 0")
-  if config.shift_source not in config_lib.SHIFT_SOURCES:
-    raise UserError(f"--shift-source {config.shift_source}: choose from "
-                    f"{', '.join(config_lib.SHIFT_SOURCES)}")
-  if config.shift_weight > 0 and config.size < CELL + 2 * SHIFT_MARGIN + CELL:
-    raise UserError(f"--size {config.size}: the shift loss needs crops of at least "
-                    f"{CELL + 2 * SHIFT_MARGIN + CELL} pixels")
+  config.validate()
   n_features = feature_batch(config)
   feature_run = check_feature_content(config, content_dirs)
   saved = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR)

@@ -43,8 +43,6 @@ from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
 
 KIND = "features"
-LOSSES = ("mse", "l1")
-DECODE_TARGETS = ("photo", "encoder")
 FROZEN = "nerf"  # params {"nerf": the NeRF run's params, "features": {"field", "lift"}}.
 TRAINED = "features"
 TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views.
@@ -289,28 +287,12 @@ def sample_batch(key, targets, c2w, K, config: FeatureConfig, ndc: bool, shape, 
 
 
 def check_config(config: FeatureConfig, parallel: DataParallel) -> None:
-  """UserError naming the setting (its `msnerf features train` option) that cannot work."""
-  images_lib.check_scale(config.stylize_scale)
-  if config.width < 0:
-    config_lib.bad_setting(config, "width", "must be >= 0")
-  for name in ("dim", "rays_per_cell", "batch_cells", "top_k", "steps"):
-    if getattr(config, name) < 1:
-      config_lib.bad_setting(config, name, "must be >= 1")
-  if config.loss not in LOSSES:
-    config_lib.bad_setting(config, "loss", f"unknown (choose from {', '.join(LOSSES)})")
-  if not config.decode_weight >= 0:
-    config_lib.bad_setting(config, "decode_weight", "must be >= 0")
-  if config.decode_weight > 0:
-    if config.decode_target not in DECODE_TARGETS:
-      config_lib.bad_setting(config, "decode_target",
-                             f"unknown (choose from {', '.join(DECODE_TARGETS)})")
-    if config.decode_cells < 3:
-      config_lib.bad_setting(config, "decode_cells", "must be >= 3 (a cell's margin is left "
-                                                     "out on every side)")
-    if config.decode_patches < 1 or config.decode_patches % parallel.size:
-      config_lib.bad_setting(config, "decode_patches", f"must be a positive multiple of the "
-                                                       f"{parallel.size} device(s)")
-  config_lib.check_hash_settings(config)
+  """UserError naming the setting (its `msnerf features train` option) that cannot work:
+  FeatureConfig.validate, then what depends on the devices."""
+  config.validate()
+  if config.decode_weight > 0 and config.decode_patches % parallel.size:
+    config_lib.bad_setting(config, "decode_patches", f"must be a positive multiple of the "
+                                                     f"{parallel.size} device(s)")
   nerf_lib.check_batch_splits(config.batch_cells, parallel)
 
 

@@ -245,7 +245,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   (`n_devices`, `parallel`). Returns the loop's summary dict.
   """
   nerf_run, scene, data = load_nerf_run(nerf_run_dir)
-  config = dataclasses.replace(config, nerf=nerf_run.config)
+  config = dataclasses.replace(config, nerf=nerf_run.config).validate()
   if config.density_aware and sampler_of(config.nerf).occupancy:
     raise UserError(f"{nerf_run_dir}: a density-aware model needs a NeRF run with the "
                     "hierarchical sampler (this one samples from its occupancy grid, which "

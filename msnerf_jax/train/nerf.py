@@ -220,10 +220,10 @@ def scene_box(scene: Scene) -> float:
 
 def resolve_config(config: NerfConfig, scene: Scene) -> NerfConfig:
   """The config with what depends on the scene filled in (scene_box 0 -> scene_box(scene)
-  when the hash trunk or the grid sampler uses it), checked (config.check_nerf_config)."""
+  when the hash trunk or the grid sampler uses it), checked (NerfConfig.validate)."""
   if config.scene_box == 0 and (config.trunk == "hash" or sampler_of(config).occupancy):
     config = dataclasses.replace(config, scene_box=scene_box(scene))
-  config_lib.check_nerf_config(config)
+  config.validate()
   return config
 
 

@@ -1,0 +1,78 @@
+"""The public surface: what a JAX user needs, importable as `import msnerf_jax as ms`.
+
+Loading a run and its scene (`load_run`, `scene_of`), its field and sampling config
+(`field_of`), rendering rays and images of any run kind in any style vectors
+(`render_rays`, `render_image`, `render_run_rays`), style vectors and blends
+(`style_vectors` of a multi-style run, `style_vector_of` any picture, `blend`), the configs, and the primitives (rays, sampling, volume
+rendering). Everything here is a pure function of its arguments or a frozen dataclass;
+`render_rays` jits and vmaps (over style vectors, for one).
+"""
+
+from typing import Any, Dict, Optional, Tuple
+
+import jax.numpy as jnp
+
+from msnerf_jax.core.config import (AdainConfig, DataConfig, FeatureConfig, MultistyleConfig,
+                                    NerfConfig, nerf_preset)
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.data.scene import Scene, load_scene
+from msnerf_jax.kinds.base import RunKind
+from msnerf_jax.kinds.multistyle import style_vectors
+from msnerf_jax.kinds.registry import KINDS, get_kind
+from msnerf_jax.kinds.runs import Run, load_run
+from msnerf_jax.kinds.runs import scene_of as _scene_and_data
+from msnerf_jax.models.feature_field import FeatureFieldFn
+from msnerf_jax.models.multistyle import MultistyleField
+from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.nerf.rays import get_rays, ray_bundle
+from msnerf_jax.nerf.render import (draw_randomness, flat_rays, render_feature_rays,
+                                    render_image, render_rays)
+from msnerf_jax.nerf.sampling import sample_pdf, stratified_samples
+from msnerf_jax.nerf.samplers import SAMPLERS, sampler_of
+from msnerf_jax.nerf.volume_rendering import volume_render
+from msnerf_jax.style.adain import adain, style_vector
+from msnerf_jax.style.vectors import blend, style_vector_of
+
+
+def scene_of(run: Run) -> Scene:
+  """The scene a loaded run was trained on, reloaded as it was (its cameras, normalised
+  world and images)."""
+  return _scene_and_data(run)[0]
+
+
+def field_of(run: Run) -> Tuple[Any, NerfConfig]:
+  """(field, NerfConfig) a loaded run renders with through `render_rays` (for a
+  multi-style run, a style field: pass style vectors [M, 1024] as `conditioning`).
+  UserError for a kind the one renderer does not draw (an AdaIN decoder; a feature field,
+  whose features `render_feature_rays` composites)."""
+  kind = get_kind(run.kind)
+  if kind.field is None:
+    raise UserError(f"{run.run_dir}: a {run.kind!r} run has no field for render_rays")
+  return kind.field(run.config), kind.nerf_config(run.config)
+
+
+def render_run_rays(run: Run, rays: Dict[str, jnp.ndarray],
+                    styles: Optional[jnp.ndarray] = None) -> Dict[str, Dict[str, jnp.ndarray]]:
+  """`render_rays` of a loaded run on rays [R] (deterministic): {level: {"rgb": [R, 3] or
+  [M, R, 3] with styles [M, 1024], "depth", "accumulation", ...}}."""
+  field, config = field_of(run)
+  return render_rays(field, run.params, rays, config, white_background=False,
+                     conditioning=None if styles is None else jnp.asarray(styles, jnp.float32))
+
+
+__all__ = [
+    # runs and scenes
+    "load_run", "Run", "scene_of", "load_scene", "Scene", "KINDS", "get_kind", "RunKind",
+    # fields and rendering
+    "field_of", "render_run_rays", "render_rays", "render_image", "render_feature_rays",
+    "draw_randomness", "flat_rays", "NerfField", "MultistyleField", "FeatureFieldFn",
+    "SAMPLERS", "sampler_of",
+    # styles
+    "style_vectors", "style_vector_of", "style_vector", "blend", "adain",
+    # configs
+    "NerfConfig", "MultistyleConfig", "FeatureConfig", "AdainConfig", "DataConfig",
+    "nerf_preset",
+    # primitives
+    "get_rays", "ray_bundle", "stratified_samples", "sample_pdf", "volume_render",
+    "UserError",
+]
