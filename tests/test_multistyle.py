@@ -363,8 +363,8 @@ def test_bad_style_loss_settings_are_refused(world, tmp_path, capsys):
   out = str(tmp_path / "run")
   base = ["multistyle", "train", "--nerf", world["nerf"], "--stylized", world["stylized"],
           "--out", out, "--steps", "1"]
-  _one_line_error(capsys, base + ["--style-weight", "-1"], "style weight -1")
-  _one_line_error(capsys, base + ["--style-weight", "1", "--style-patch", "8"], "style patch 8",
+  _one_line_error(capsys, base + ["--style-weight", "-1"], "--style-weight -1.0")
+  _one_line_error(capsys, base + ["--style-weight", "1", "--style-patch", "8"], "--style-patch 8",
                   "16")
   _one_line_error(capsys, base + ["--style-weight", "1", "--style-patch", "17"], "style patch 17")
   assert not os.path.exists(out)

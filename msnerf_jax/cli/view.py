@@ -16,8 +16,7 @@ def register(commands, formatter):
                   "an upload field for any style image; buttons to snap to the nearest "
                   "training view, save the view as PNG and add camera keyframes (a "
                   "camera_path.json for `msnerf render --camera-path`). Ctrl-C or SIGTERM "
-                  "stops it. "
-                  "Needs the viewer extra: pip install \"msnerf-jax[viewer]\".",
+                  "stops it.",
       epilog="example: msnerf view --run runs/lego_pipeline/multistyle  (then open the printed "
              "address)")
   p.add_argument("--run", required=True, help="a NeRF, multi-style or feature run folder")
@@ -43,7 +42,7 @@ def cmd_view(args):
     from msnerf_jax.viewer import server  # pylint: disable=g-import-not-at-top
   except ImportError as e:
     raise UserError(f"the viewer needs viser ({e.name} is not installed): "
-                    "pip install \"msnerf-jax[viewer]\"") from None
+                    "pip install viser") from None
   print(f"msnerf view: loading {args.run}")
   viewer = server.open_viewer(args.run, args.out, args.host, args.port,
                               style_paths=args.styles, decoder_dir=args.decoder,

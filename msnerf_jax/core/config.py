@@ -95,6 +95,11 @@ class NerfConfig:
                           "checkpoint_every", "keep_checkpoints", "lr_decay_steps",
                           "render_chunk"))
     check_positive(self, ("lr_init", "lr_final"))
+    check_at_least(self, ("pos_freqs", "dir_freqs", "precrop_steps", "mlp_chunk"), 0)
+    if not 0.0 < self.precrop_frac <= 1.0:
+      bad_setting(self, "precrop_frac", "must be in (0, 1]")
+    if not self.raw_noise_std >= 0:
+      bad_setting(self, "raw_noise_std", "must be >= 0")
     if not self.distortion_weight >= 0:
       bad_setting(self, "distortion_weight", "must be >= 0")
     bad = functools.partial(bad_setting, self)
@@ -109,6 +114,7 @@ class NerfConfig:
     if self.sampler == SAMPLERS[1]:  # the occupancy grid's settings
       check_at_least(self, ("grid_resolution", "march_steps", "march_segments",
                             "samples_per_ray", "grid_every"))
+      check_at_least(self, ("grid_warmup",), 0)
       if not 0.0 < self.grid_decay <= 1.0:
         bad("grid_decay", "must be in (0, 1]")
       if self.grid_threshold < 0:
@@ -285,8 +291,12 @@ class FeatureConfig:
     if isinstance(scale, bool) or not isinstance(scale, int) or scale < 1:
       bad_setting(self, "stylize_scale", "must be a whole number >= 1")
     check_at_least(self, ("width",), 0)
-    check_at_least(self, ("dim", "rays_per_cell", "batch_cells", "top_k", "steps"))
+    check_at_least(self, ("dim", "rays_per_cell", "batch_cells", "top_k", "steps",
+                          "lr_decay_steps", "checkpoint_every", "keep_checkpoints"))
     check_positive(self, ("lr_init",), "lr")
+    check_positive(self, ("lr_final",))
+    if self.scene_box < 0:
+      bad_setting(self, "scene_box", "must be >= 0 (0 = the NeRF's)")
     if self.loss not in FEATURE_LOSSES:
       bad_setting(self, "loss", f"unknown (choose from {', '.join(FEATURE_LOSSES)})")
     if not self.decode_weight >= 0:
@@ -410,8 +420,14 @@ class AdainConfig:
       bad_setting(self, "upsample", f"choose from {', '.join(UPSAMPLE_MODES)}")
     if self.size < 16 or self.size % 8:
       bad_setting(self, "size", "must be a multiple of 8, at least 16")
-    check_at_least(self, ("batch", "steps"))
+    check_at_least(self, ("resize",), 16)
+    check_at_least(self, ("batch", "steps", "sample_every", "checkpoint_every",
+                          "keep_checkpoints"))
+    check_at_least(self, ("holdout_every",), 0)
     check_positive(self, ("lr",))
+    for name in ("lr_decay", "content_weight", "style_weight"):
+      if not 0.0 <= getattr(self, name) < float("inf"):
+        bad_setting(self, name, "must be a number >= 0")
     if not 0.0 <= self.shift_weight < float("inf"):
       bad_setting(self, "shift_weight", "must be a number >= 0")
     if self.shift_source not in SHIFT_SOURCES:
@@ -456,7 +472,14 @@ class MultistyleConfig:
   def validate(self) -> "MultistyleConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
     that cannot work (the patch loss against the scene's size is the trainer's check)."""
-    check_at_least(self, ("steps",))
+    check_at_least(self, ("steps", "batch_rays", "style_dim", "style_hidden", "style_hidden2",
+                          "checkpoint_every", "keep_checkpoints", "lr_decay_steps"))
     check_positive(self, ("lr_init",), "lr")
+    check_positive(self, ("lr_final",))
     check_at_least(self, ("rgb_extra_layers", "density_extra_layers"), 0)
+    if not 0.0 <= self.style_weight < float("inf"):
+      bad_setting(self, "style_weight", "must be a number >= 0")
+    if self.style_weight > 0:
+      check_at_least(self, ("style_patch",), 16)
+      check_at_least(self, ("style_patches",))
     return self

@@ -442,5 +442,5 @@ def format_summary(summary: Dict[str, Any]) -> str:
     lines.append(f"paint it in any style: msnerf render --run "
                  f"{os.path.join(summary['out'], 'features')} --style IMG --out VIDEO")
   lines.append(f"look around it in the browser: msnerf view --run "
-               f"{os.path.join(summary['out'], 'multistyle')}  (pip install \"msnerf-jax[viewer]\")")
+               f"{os.path.join(summary['out'], 'multistyle')}")
   return "\n".join(lines) + "\n"

@@ -203,9 +203,7 @@ def sample_patches(key, images, c2w, K, config: MultistyleConfig, scene: Scene, 
 
 def check_style_loss(config: MultistyleConfig, scene: Scene, n_devices: int) -> None:
   """UserError unless the patch style loss settings fit the views and the devices."""
-  if config.style_weight < 0:
-    raise UserError(f"style weight {config.style_weight}: must be >= 0")
-  if config.style_weight == 0:
+  if config.style_weight == 0:  # (its sign is MultistyleConfig.validate's)
     return
   if not 16 <= config.style_patch <= min(scene.height, scene.width):
     raise UserError(f"style patch {config.style_patch}: must be between 16 (VGG's relu4_1 "

@@ -7,5 +7,6 @@
   * `server`: the viser page (GUI, uploads, saving) on top of them;
   * `probe`: a headless client speaking viser's protocol (tests, load and speed scripts).
 
-viser is an optional dependency (`pip install ".[viewer]"`); only this package imports it.
+viser is installed with the package (the viewer is a main feature); only this package
+imports it.
 """
