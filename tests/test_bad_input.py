@@ -330,8 +330,9 @@ def case_checkpoint_of_another_config(world, tmp):
   ckpts = checkpoint.Checkpoints(run)
   ckpts.save(2, state_lib.checkpoint_tree(nerf.init_state(TINY)))
   ckpts.close()
-  return ["nerf", "train", "--data", world["scene"], "--out", run, "--batch-rays", "64",
-          "--steps", "2", "--checkpoint-every", "2"], ["checkpoint does not match"], run
+  return ["nerf", "train", "--data", world["scene"], "--out", run, "--preset", "cpu",
+          "--batch-rays", "64", "--steps", "2", "--checkpoint-every", "2"], \
+      ["checkpoint does not match"], run
 
 
 def case_resume_with_another_config(world, tmp):

@@ -101,4 +101,4 @@ def test_help_describes_every_option(capsys):
       main(argv)
     assert e.value.code == 0
   out = capsys.readouterr().out
-  assert "--preset" in out and "default: cpu" in out and "--split" in out
+  assert "--preset" in out and "default: fast" in out and "--split" in out

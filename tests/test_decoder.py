@@ -14,6 +14,8 @@ from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import decoder
 from msnerf_jax.train import adain as train_adain
+from msnerf_jax.train import adain_losses
+from msnerf_jax.train import adain_data
 
 
 def test_decoder_shapes_and_layers():
@@ -161,11 +163,11 @@ def test_training_reduces_loss():
 
 def test_crops_flips_and_holdout_split():
   image = np.arange(10 * 12 * 3, dtype=np.uint8).reshape(10, 12, 3)
-  batch = train_adain.random_crops(np.random.default_rng(0), [[image]], 16, 8)
+  batch = adain_data.random_crops(np.random.default_rng(0), [[image]], 16, 8)
   assert batch.shape == (16, 8, 8, 3) and batch.dtype == np.float32
   assert batch.max() <= 1.0
-  assert train_adain.split_holdout(list("abcdefg"), 3) == (list("abdeg"), list("cf"))
-  assert train_adain.split_holdout(list("ab"), 0) == (list("ab"), [])
+  assert adain_data.split_holdout(list("abcdefg"), 3) == (list("abdeg"), list("cf"))
+  assert adain_data.split_holdout(list("ab"), 0) == (list("ab"), [])
 
 
 def test_reflect_conv_equals_valid_conv_of_padded_input():
@@ -184,16 +186,16 @@ def test_reflect_conv_equals_valid_conv_of_padded_input():
 
 
 def test_random_shifts_are_sub_cell_and_deterministic():
-  shifts = train_adain.random_shifts(np.random.default_rng([3, 7]), 500)
+  shifts = adain_data.random_shifts(np.random.default_rng([3, 7]), 500)
   assert shifts.shape == (500, 2) and shifts.dtype == np.int32
   assert shifts.min() == 1 and shifts.max() == train_adain.CELL - 1  # never 0, never a cell.
-  np.testing.assert_array_equal(shifts, train_adain.random_shifts(np.random.default_rng([3, 7]), 500))
+  np.testing.assert_array_equal(shifts, adain_data.random_shifts(np.random.default_rng([3, 7]), 500))
 
 
 def test_window_is_the_moved_crop():
   images = jnp.arange(2 * 10 * 12 * 3, dtype=jnp.float32).reshape(2, 10, 12, 3)
   corners = jnp.array([[1, 3], [4, 0]], jnp.int32)
-  out = train_adain.window(images, corners, 5)
+  out = adain_losses.window(images, corners, 5)
   np.testing.assert_array_equal(out[0], images[0, 1:6, 3:8])
   np.testing.assert_array_equal(out[1], images[1, 4:9, 0:5])
 
@@ -210,8 +212,8 @@ def test_shift_loss_compares_the_moved_decode_with_the_same_window():
   mean = jnp.asarray(rng.random((2, 512)), jnp.float32)
   std = jnp.asarray(rng.random((2, 512)) + 0.5, jnp.float32)
   shifts = np.array([[1, 7], [5, 2]], np.int32)
-  got = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
-  side, margin = 40 - train_adain.CELL, train_adain.SHIFT_MARGIN
+  got = adain_losses.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
+  side, margin = 40 - train_adain.CELL, adain_losses.SHIFT_MARGIN
   expected = []
   for b, (dy, dx) in enumerate(shifts):
     moved = content[b:b + 1, dy:dy + side, dx:dx + side]
@@ -229,7 +231,7 @@ def test_resample_cells_is_bilinear_between_neighbouring_cells():
   rng = np.random.default_rng(4)
   feats = rng.random((2, 4, 5, 3)).astype(np.float32)
   shifts = np.array([[3, 6], [0, 8]], np.int32)
-  got = np.asarray(train_adain.resample_cells(jnp.asarray(feats), jnp.asarray(shifts)))
+  got = np.asarray(adain_losses.resample_cells(jnp.asarray(feats), jnp.asarray(shifts)))
   assert got.shape == (2, 3, 4, 3)
   for b, (dy, dx) in enumerate(shifts / train_adain.CELL):
     for i in range(3):
@@ -252,20 +254,20 @@ def test_shift_loss_of_features_decodes_the_resampled_map():
   target = rng.normal(size=(2, 5, 5, 512)).astype(np.float32)
   mean, std = jnp.zeros((2, 512)), jnp.ones((2, 512))
   shifts = np.array([[2, 5], [7, 1]], np.int32)
-  got = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest",
+  got = adain_losses.shift_loss(params, enc, content, output, mean, std, shifts, "nearest",
                                "features", target)
-  again = train_adain.shift_loss(params, enc, np.zeros_like(content), output, mean, std, shifts,
+  again = adain_losses.shift_loss(params, enc, np.zeros_like(content), output, mean, std, shifts,
                                  "nearest", "features", target)
   np.testing.assert_allclose(float(got), float(again), rtol=1e-6)
-  side, margin = 40 - train_adain.CELL, train_adain.SHIFT_MARGIN
+  side, margin = 40 - train_adain.CELL, adain_losses.SHIFT_MARGIN
   inner = slice(margin, side - margin)
-  moved = train_adain.resample_cells(jnp.asarray(target), jnp.asarray(shifts))
+  moved = adain_losses.resample_cells(jnp.asarray(target), jnp.asarray(shifts))
   decoded = np.asarray(decoder.Decoder("nearest").apply(params, moved))
   expected = [np.mean((decoded[b][inner, inner]
                        - output[b, dy:dy + side, dx:dx + side][inner, inner]) ** 2)
               for b, (dy, dx) in enumerate(shifts)]
   np.testing.assert_allclose(float(got), np.mean(expected), rtol=1e-4)
-  photo = train_adain.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
+  photo = adain_losses.shift_loss(params, enc, content, output, mean, std, shifts, "nearest")
   assert abs(float(photo) - float(got)) > 1e-3 * float(got)  # the two sources differ.
 
 
@@ -280,10 +282,10 @@ def test_shift_weight_adds_the_loss_and_its_gradient_lowers_it():
   style = (rng.random((2, 32, 32, 3)) ** 2).astype(np.float32)
   shifts = np.array([[3, 4], [7, 1]], np.int32)
   plain = dataclasses.replace(TINY, shift_weight=0.0)
-  total, metrics = train_adain.losses(params, enc, content, style, plain, shifts)
+  total, metrics = adain_losses.losses(params, enc, content, style, plain, shifts)
   assert "shift" not in metrics
   with_shift = dataclasses.replace(TINY, shift_weight=2.0)
-  total2, metrics2 = train_adain.losses(params, enc, content, style, with_shift, shifts)
+  total2, metrics2 = adain_losses.losses(params, enc, content, style, with_shift, shifts)
   np.testing.assert_allclose(float(total2), float(total) + 2.0 * float(metrics2["shift"]),
                              rtol=1e-5)
   for source in config_lib.SHIFT_SOURCES:

@@ -325,7 +325,6 @@ def test_multistyle_on_the_hash_trunk_keeps_trunk_and_grid_bit_identical(fast_wo
 
 
 def test_multistyle_sweep_on_the_grid_equals_single_renders(fast_world):
-  from msnerf_jax.kinds import runs  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import views
   run = msnerf_jax.load_run(fast_world["run"])
   vectors = multistyle_kind.style_vectors(run)

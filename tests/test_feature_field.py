@@ -239,7 +239,6 @@ def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alon
 
 def test_a_k_style_sweep_equals_k_single_renders_and_alpha_0_decodes_the_features(
     feature_world):
-  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import views
   from msnerf_jax.style.features import decode_styles  # pylint: disable=g-import-not-at-top
   run = msnerf_jax.load_run(feature_world["run"])
@@ -274,7 +273,6 @@ def test_frames_averaged_over_four_cell_grids_follow_half_cell_shifts_exactly(fe
   from the borders its frame is the first frame moved, which one grid is not."""
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.nerf import cameras
-  from msnerf_jax.style import transfer as stylize
   from msnerf_jax.kinds import views
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
@@ -308,7 +306,6 @@ def test_msnerf_render_paints_a_feature_run_in_any_style_image(feature_world, tm
 
 def test_stylize_scene_from_features_writes_the_fields_renders_as_a_stylized_dataset(
     feature_world, tmp_path, capsys):
-  from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import views
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.images import read_image
@@ -482,6 +479,8 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   from msnerf_jax.core.config import AdainConfig  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import adain_losses  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.train import adain_data  # pylint: disable=g-import-not-at-top
   styles = _styles_folder(tmp_path / "styles")
   config = AdainConfig(size=32, resize=40, batch=2, steps=4, sample_every=2, checkpoint_every=2,
                        lr=1e-4, init_from=feature_world["decoder"],
@@ -491,7 +490,7 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   result = train_adain.train(config, [], styles, straight, **quiet)
   assert result.step == 4 and np.isfinite(result.metrics["loss"])
   assert os.path.exists(os.path.join(straight, "samples", "step_0000004.png"))
-  maps, stats = train_adain.prepare_feature_maps(straight, config)
+  maps, stats = adain_data.prepare_feature_maps(straight, config)
   run = msnerf_jax.load_run(feature_world["run"])
   scene = feature_world["scene"]
   assert maps.shape == (len(scene.split("train")), 4, 4, 512) and maps.dtype == np.float16
@@ -503,7 +502,7 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   enc = vgg.load_vgg_params()
   style = np.random.default_rng(3).random((1, 32, 32, 3)).astype(np.float32)
   s_mean, s_std = adain.channel_stats(adain.encode(enc, jnp.asarray(style))["relu4_1"])
-  target = train_adain.adain_targets(enc, None, jnp.asarray(maps[1:2], jnp.float32), s_mean, s_std)
+  target = adain_losses.adain_targets(enc, None, jnp.asarray(maps[1:2], jnp.float32), s_mean, s_std)
   painted = stylize_features(jnp.asarray(maps[1], jnp.float32) * std + mean, jnp.ones((4, 4)),
                              (mean, std), (s_mean[0], s_std[0]))
   np.testing.assert_allclose(target[0], painted, rtol=1e-4, atol=1e-3)
@@ -514,9 +513,9 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
   feats = jnp.asarray(maps[:1], jnp.float32)
   shifted = dataclasses.replace(config, shift_weight=1.0, shift_source="features")
   shifts = np.array([[3, 4], [7, 1]], np.int32)
-  _, both = train_adain.losses(params, enc, photo, styles2, shifted, shifts, feats)
-  _, first = train_adain.losses(params, enc, photo, styles2[:1], shifted, shifts[:1])
-  _, second = train_adain.losses(params, enc, None, styles2[1:], shifted, shifts[1:], feats)
+  _, both = adain_losses.losses(params, enc, photo, styles2, shifted, shifts, feats)
+  _, first = adain_losses.losses(params, enc, photo, styles2[:1], shifted, shifts[:1])
+  _, second = adain_losses.losses(params, enc, None, styles2[1:], shifted, shifts[1:], feats)
   for name in ("content", "style", "shift"):
     np.testing.assert_allclose(both[name], (first[name] + second[name]) / 2, rtol=1e-4)
   # Two steps, then resumed to four: the same decoder bit for bit.

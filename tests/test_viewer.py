@@ -411,8 +411,6 @@ def test_feature_run_paints_the_given_styles_and_uploads_at_any_strength(world, 
   its decoder; --styles images come first in the menus, uploads are cover-cropped as the
   decoder paints, and the strength slider blends towards the scene's own statistics."""
   # pylint: disable=g-import-not-at-top
-  from msnerf_jax.pipeline import videos as style_videos
-  from msnerf_jax.style import transfer as stylize
   from msnerf_jax.data.images import decode_image
   from msnerf_jax.style.vectors import style_vector_of
   from msnerf_jax.models import vgg

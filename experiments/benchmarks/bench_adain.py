@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.style import transfer as stylize_lib
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
@@ -99,7 +100,7 @@ def main():
         f"{affinity} of {os.cpu_count()} cores usable; jax {jax.__version__}")
   enc = vgg.load_vgg_params()
   if args.decoder:
-    dec = stylize_lib.load_decoder(args.decoder)
+    dec = stylized_scenes.load_decoder(args.decoder)
     params, upsample = dec.params, dec.config.upsample
   else:
     params, upsample = decoder_lib.init_decoder(jax.random.PRNGKey(0)), "nearest"

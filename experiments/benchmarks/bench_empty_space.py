@@ -39,6 +39,7 @@ from msnerf_jax.core import files
 from msnerf_jax.nerf import occupancy
 from msnerf_jax.nerf import regularizers
 from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.nerf.samplers.grid import render_rays_grid
 from msnerf_jax.data import video
 from msnerf_jax.core.config import DataConfig, nerf_preset
 from msnerf_jax.data import images as images_lib

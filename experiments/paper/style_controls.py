@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.eval import evaluate
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.eval import metrics
 from msnerf_jax.data import video
 from msnerf_jax.kinds import views
@@ -37,7 +38,8 @@ from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import read_manifest
 from msnerf_jax.models import vgg
-from msnerf_jax.kinds.runs import load_run, load_run_and_scene, style_vectors
+from msnerf_jax.kinds.runs import load_run, load_run_and_scene
+from msnerf_jax.kinds.multistyle import style_vectors
 from msnerf_jax.style.vectors import resolve_style, sweep
 
 
@@ -104,7 +106,7 @@ def main():
                                                    for f, p in zip(frames, photo)]))
       rows.append(row)
   else:
-    decoder = stylize_lib.load_decoder(manifest["decoder"])
+    decoder = stylized_scenes.load_decoder(manifest["decoder"])
     nerf_run = load_run(run.record["nerf_run"])
     base = [views.render_view(scene, nerf_run.params, nerf_run.config, c2w, args.chunk)
             for c2w in poses]

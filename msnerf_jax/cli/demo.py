@@ -11,11 +11,11 @@ DEMO_VIEWS = 40
 
 
 def demo_settings():
-  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.pipeline.settings import Settings  # pylint: disable=g-import-not-at-top
   # About 11.5 minutes on an idle 2-core CPU (README). The decoder gets the largest share: with
   # fewer steps its outputs are the style's texture alone, and the stylized views (and so every
   # render) lose the scene.
-  return dataclasses.replace(pipeline.Settings(), adain_steps=800, adain_size=64, adain_batch=4,
+  return dataclasses.replace(Settings(), adain_steps=800, adain_size=64, adain_batch=4,
                              adain_lr=1e-3, style_weight=0.5, nerf_steps=1000,
                              nerf_batch_rays=1024, ms_steps=1500, ms_batch_rays=512,
                              features_steps=400, features_batch_cells=512, fps=10)
@@ -52,7 +52,8 @@ def register(commands, formatter):
 def cmd_demo(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.pipeline import demo
-  from msnerf_jax.pipeline import stages as pipeline
+  from msnerf_jax.pipeline.run import format_summary, run_pipeline
+  from msnerf_jax.pipeline.settings import Settings
   from msnerf_jax.cli.pipeline import settings_from_args
   if args.size < 16:
     raise UserError(f"--size {args.size}: must be at least 16")
@@ -70,10 +71,10 @@ def cmd_demo(args):
   if styles is None:
     styles = demo.write_styles(os.path.join(args.out, "styles"), seed=args.seed)
     print(f"built-in styles: {', '.join(styles)}")
-  summary = pipeline.run_pipeline(data, styles, args.out, args.decoder,
-                                  settings_from_args(args, pipeline.Settings),
-                                  progress=not args.no_progress)
-  print("\n" + pipeline.format_summary(summary), end="")
+  summary = run_pipeline(data, styles, args.out, args.decoder,
+                         settings_from_args(args, Settings),
+                         progress=not args.no_progress)
+  print("\n" + format_summary(summary), end="")
   renders = os.path.join(args.out, "renders")
   features = (f", {os.path.join(renders, 'features.mp4')} (the same, painted by the feature "
               "field)") if args.features_steps else ""

@@ -1,16 +1,13 @@
-"""`msnerf stylize-scene`, `msnerf multistyle train|eval` and `msnerf render`: the 3D style stage."""
+"""`msnerf stylize-scene` and `msnerf multistyle train|eval`: the paper's 3D style stage."""
 
 import json
 import os
 import time
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
-from msnerf_jax.cli.common import (add_camera_path_arguments, add_grids_argument,
-                                   add_parallel_arguments,
-                                   load_run_and_scene, output_stem, print_summary,
-                                   print_training_summary, render_cameras, start_processes)
+from msnerf_jax.cli.common import (add_parallel_arguments, load_run_and_scene, print_summary,
+                                   print_training_summary, start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
 from msnerf_jax.core.errors import UserError
@@ -19,6 +16,11 @@ _DEFAULTS = config_lib.MultistyleConfig()
 
 
 def register(commands, formatter):
+  _register_stylize_scene(commands, formatter)
+  _register_multistyle(commands, formatter)
+
+
+def _register_stylize_scene(commands, formatter):
   p = commands.add_parser(
       "stylize-scene", formatter_class=formatter,
       help="stylize every view of a scene with each style (the multi-style training set)",
@@ -58,6 +60,8 @@ def register(commands, formatter):
   p.add_argument("--out", required=True, help="dataset folder")
   p.set_defaults(func=cmd_stylize_scene)
 
+
+def _register_multistyle(commands, formatter):
   ms = commands.add_parser("multistyle", formatter_class=formatter,
                            help="train and evaluate a multi-style NeRF",
                            description="Style heads on the frozen trunk of a trained NeRF.")
@@ -111,70 +115,8 @@ def register(commands, formatter):
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_eval)
 
-  p = commands.add_parser(
-      "evaluate", formatter_class=formatter,
-      help="consistency and style metrics of multi-style runs vs the baselines",
-      description="Renders the camera path in each style with each multi-style run and the "
-                  "baselines (per-frame AdaIN on the NeRF's renders; NeRFs trained on one "
-                  "style alone, if given) and reports short/long-range warped RMSE and LPIPS "
-                  "(k = 1, 7) and the style distance to the style image. Writes "
-                  "results.md/.csv/.json and frames.png to --out.",
-      epilog="example: msnerf evaluate --run runs/ms runs/ms_density --single-style "
-             "runs/single_mondrian --out runs/eval")
-  p.add_argument("--run", required=True, nargs="+", metavar="RUN",
-                 help="multi-style run folder(s) of one stylized dataset (e.g. the standard "
-                      "and the density-aware variant)")
-  p.add_argument("--single-style", nargs="+", default=(), metavar="NERF_RUN",
-                 help="NeRF runs trained on one style of that dataset (`msnerf nerf train "
-                      "--stylized DIR --style NAME`), each compared on its style")
-  p.add_argument("--features", nargs="+", default=(), metavar="FEATURE_RUN",
-                 help="feature-field runs of the same scene (`msnerf features train`), each "
-                      "painting every evaluated style from its image (row feature-field)")
-  p.add_argument("--styles", nargs="+", default=None, metavar="NAME",
-                 help="training styles to evaluate (default: all stylized ones)")
-  p.add_argument("--decoder", default=None,
-                 help="AdaIN run for the per-frame baseline (default: the dataset's)")
-  p.add_argument("--frames", type=int, default=40, help="frames of the camera path")
-  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
-  p.add_argument("--out", required=True, help="folder for the tables and figures")
-  p.set_defaults(func=cmd_evaluate)
-
-  p = commands.add_parser(
-      "render", formatter_class=formatter,
-      help="videos and an interpolation grid of a run along its render path",
-      description="For a multi-style run, writes OUT.mp4/.gif in one style, OUT_morph.mp4/.gif "
-                  "whose style moves from A to B along the path, and OUT_grid.png (interpolation "
-                  "steps x views). A STYLE is a training style's name or any image file (its "
-                  "style vector is computed, so styles never trained on work too). For a NeRF "
-                  "run, same as `msnerf nerf render`.",
-      epilog="examples: msnerf render --run runs/ms --out runs/ms/video --style starry_night\n"
-             "  msnerf render --run runs/ms --out v --interp starry_night scream --t 0.3\n"
-             "  msnerf render --run runs/ms --out v --style scream --strength 0.5")
-  p.add_argument("--run", required=True, help="run folder (multi-style, feature field, or NeRF)")
-  p.add_argument("--out", required=True, help="output file stem")
-  p.add_argument("--style", default=None, metavar="STYLE",
-                 help="style of the main video (default: the first training style)")
-  p.add_argument("--interp", nargs=2, default=None, metavar=("A", "B"),
-                 help="main video in the blend (1 - t) A + t B of two styles")
-  p.add_argument("--t", type=float, default=0.5, help="blend weight of B for --interp")
-  p.add_argument("--strength", type=float, default=None,
-                 help="main video at this strength between the original scene (0) and the "
-                      "style (1); needs a run trained with --include-original")
-  p.add_argument("--morph", nargs=2, default=None, metavar=("A", "B"),
-                 help="styles of the morph video and the grid (default: the first two)")
-  p.add_argument("--grid-steps", type=int, default=5, help="interpolation steps in the grid")
-  p.add_argument("--grid-views", type=int, default=3, help="views (rows) in the grid")
-  p.add_argument("--decoder", default=None, metavar="ADAIN_RUN",
-                 help="feature runs: the AdaIN run that paints the features (default: the one "
-                      "the run was trained for)")
-  add_grids_argument(p)
-  add_camera_path_arguments(p)
-  p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
-  p.set_defaults(func=cmd_render)
-
 
 def cmd_stylize_scene(args):
-  from msnerf_jax.style import transfer as stylize_lib  # pylint: disable=g-import-not-at-top
   t0 = time.time()
   if args.from_features is not None:
     given = [f"--{name.replace('_', '-')}" for name, default in (
@@ -265,53 +207,3 @@ def cmd_eval(args):
       ("mean SSIM", f"{means['mean']['ssim']:.4f}"),
       ("time", f"{time.time() - t0:.1f} s"), ("metrics", os.path.join(out_dir, "metrics.json")),
       ("figure", figure)])
-
-
-def cmd_render(args):
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.pipeline import videos as style_videos
-  from msnerf_jax.style import vectors as styles_lib
-  from msnerf_jax.cli import nerf as nerf_cli
-  from msnerf_jax.kinds.registry import get_kind
-  from msnerf_jax.kinds.renderers import style_rendering
-  from msnerf_jax.kinds.runs import read_run_file
-  kind = get_kind(read_run_file(args.run)["kind"])
-  if kind.style_renderer is None:
-    return nerf_cli.cmd_render(args)
-  styles_lib.check_unit("--t", args.t)
-  styles_lib.check_unit("--strength", args.strength)
-  if kind.paints_any_style and args.style is None and not args.interp:
-    raise UserError(f"{args.run}: a {kind.title} run paints any style image: give --style IMG "
-                    "(or --interp A B)")
-  run, scene = load_run_and_scene(args.run, kind.name)
-  # A painting kind's "original" is the scene's own statistics: --strength blends towards it.
-  vectors, size, renderer = style_rendering(run, scene, args.chunk, args.grids, args.decoder)
-  cache = {}
-  main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
-                                             args.t, args.strength, size)
-  morph, ends = styles_lib.morph_ends(vectors, cache, args.morph, size)
-  poses, fps, size = render_cameras(scene, args)
-  t0 = time.time()
-  written = style_videos.write_render_videos(
-      renderer, poses, main, ends,
-      output_stem(args.out), fps, args.grid_steps, args.grid_views)
-  seconds = time.time() - t0
-  print_summary(f"{kind.title} render done", [
-      ("style", label), ("morph", " -> ".join(morph) if morph else "(one style only)"),
-      ("frames", f"{len(poses)} of {size}"),
-      ("time", f"{seconds:.1f} s"), ("written", ", ".join(written))])
-
-
-def cmd_evaluate(args):
-  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.eval import evaluate
-  if args.frames < 9:
-    raise UserError(f"--frames {args.frames}: need at least 9 (long range compares t, t + 7)")
-  if os.path.isfile(args.out):
-    raise UserError(f"{args.out}: is a file, expected a folder")
-  result = evaluate.evaluate_run(args.run, args.out, args.styles, args.decoder, args.frames,
-                                 args.chunk, single_style_runs=args.single_style,
-                                 feature_runs=args.features)
-  evaluate.print_table(result["rows"])
-  print_summary("evaluation done", [("time", f"{result['seconds']:.0f} s"),
-                                    ("written", ", ".join(result["files"]))])

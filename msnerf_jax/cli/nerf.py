@@ -28,6 +28,13 @@ def register(commands, formatter):
                              description="The geometry stage: a vanilla NeRF on posed photos.")
   verbs = nerf.add_subparsers(dest="verb", metavar="VERB", required=True)
 
+  _register_train(verbs, formatter)
+  _register_eval(verbs, formatter)
+  _register_render(verbs, formatter)
+  _register_camera_path(verbs, formatter)
+
+
+def _register_train(verbs, formatter):
   p = verbs.add_parser("train", formatter_class=formatter,
                        help="train a NeRF (re-run the same command to resume)",
                        description="Train a NeRF on a Blender or LLFF scene. Re-running the same "
@@ -35,7 +42,7 @@ def register(commands, formatter):
                        "train longer.")
   p.add_argument("--data", required=True, help="scene folder (Blender or LLFF, auto-detected)")
   p.add_argument("--out", required=True, help="run folder for config, checkpoints and logs")
-  p.add_argument("--preset", default="cpu", choices=config_lib.PRESETS,
+  p.add_argument("--preset", default=config_lib.DEFAULT_PRESET, choices=config_lib.PRESETS,
                  help="paper = reference architecture and defaults; cpu = small MLP for a "
                       "laptop; fast = hash-grid trunk and occupancy-grid sampling "
                       "(instant-NGP's recipe)")
@@ -73,6 +80,8 @@ def register(commands, formatter):
                        title="scene loading", skip=("path", "downscale"))
   p.set_defaults(func=cmd_train)
 
+
+def _register_eval(verbs, formatter):
   p = verbs.add_parser("eval", formatter_class=formatter, help="PSNR/SSIM on a held-out split",
                        description="Render a split of the run's scene and report PSNR and SSIM.")
   p.add_argument("--run", required=True, help="run folder made by `msnerf nerf train`")
@@ -80,6 +89,8 @@ def register(commands, formatter):
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_eval)
 
+
+def _register_render(verbs, formatter):
   p = verbs.add_parser("render", formatter_class=formatter,
                        help="video along the scene's render path (MP4 + GIF, plus depth)",
                        description="Render the dataset's render path (Blender: orbit; LLFF: "
@@ -90,6 +101,8 @@ def register(commands, formatter):
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
   p.set_defaults(func=cmd_render)
 
+
+def _register_camera_path(verbs, formatter):
   p = verbs.add_parser("camera-path", formatter_class=formatter,
                        help="write the scene's render path as a nerfstudio camera_path.json",
                        description="Write the render path of a run's scene (Blender: orbit; "

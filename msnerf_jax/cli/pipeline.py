@@ -1,8 +1,9 @@
-"""`msnerf pipeline`: every stage in one command, with caching (see msnerf_jax.pipeline.stages)."""
+"""`msnerf pipeline`: every stage in one command, with caching (see msnerf_jax.pipeline.run)."""
 
 import dataclasses
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.pipeline.settings import Settings
 
 _HELP = {
     "downscale": "scene image downscale factor (0 = the format's default: Blender 1, LLFF 8, "
@@ -31,7 +32,7 @@ _HELP = {
 
 
 def add_settings_arguments(parser, defaults):
-  """One option per field of pipeline.Settings, with `defaults` as the defaults."""
+  """One option per field of pipeline.settings.Settings, with `defaults` as the defaults."""
   group = parser.add_argument_group("stage sizes")
   for field in dataclasses.fields(defaults):
     value = getattr(defaults, field.name)
@@ -46,7 +47,6 @@ def settings_from_args(args, cls):
 
 
 def register(commands, formatter):
-  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
   p = commands.add_parser(
       "pipeline", formatter_class=formatter,
       help="every stage in one command: decoder, NeRF, stylized views, multi-style NeRF, "
@@ -64,13 +64,12 @@ def register(commands, formatter):
   p.add_argument("--out", required=True, help="output folder (one subfolder per stage)")
   p.add_argument("--decoder", default=None, metavar="ADAIN_RUN",
                  help="a trained AdaIN run folder to use instead of training one")
-  add_settings_arguments(p, pipeline.Settings())
+  add_settings_arguments(p, Settings())
   p.set_defaults(func=cmd_pipeline)
 
 
 def cmd_pipeline(args):
-  from msnerf_jax.pipeline import stages as pipeline  # pylint: disable=g-import-not-at-top
-  summary = pipeline.run_pipeline(args.data, args.styles, args.out, args.decoder,
-                                  settings_from_args(args, pipeline.Settings),
-                                  progress=not args.no_progress)
-  print("\n" + pipeline.format_summary(summary), end="")
+  from msnerf_jax.pipeline.run import format_summary, run_pipeline  # pylint: disable=g-import-not-at-top
+  summary = run_pipeline(args.data, args.styles, args.out, args.decoder,
+                         settings_from_args(args, Settings), progress=not args.no_progress)
+  print("\n" + format_summary(summary), end="")

@@ -22,6 +22,15 @@ TMP_MARK = ".orbax-checkpoint-tmp"
 OVERHEAD_BYTES = 256 << 10
 
 
+def latest_saved_step(run_dir: str) -> int:
+  """The step of the latest checkpoint of a run folder, read from the folder names alone
+  (nothing opened or cleaned up; 0: no run.json or no checkpoint)."""
+  folder = os.path.join(run_dir, CHECKPOINT_DIR)
+  if not os.path.isfile(os.path.join(run_dir, "run.json")) or not os.path.isdir(folder):
+    return 0
+  return max((int(n) for n in os.listdir(folder) if n.isdigit()), default=0)
+
+
 def checkpoint_bytes(tree: Any) -> int:
   """About how many bytes one checkpoint of `tree` takes on disk."""
   leaves = jax.tree_util.tree_leaves(tree)

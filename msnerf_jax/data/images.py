@@ -142,6 +142,12 @@ def _normalize_mode(image: Image.Image) -> Image.Image:
   return image.convert("RGB")  # CMYK, YCbCr, LAB, HSV ...
 
 
+def over_background(rgb: np.ndarray, alpha: np.ndarray, background=1.0) -> np.ndarray:
+  """rgb [..., 3] put over a background (a colour, or white) by its opacity alpha [..., 1]:
+  rgb a + background (1 - a). The one composite of a picture over white."""
+  return rgb * alpha + background * (1.0 - alpha)
+
+
 def _to_rgb(array: np.ndarray, background: Optional[float], keep_alpha: bool) -> np.ndarray:
   if array.ndim == 2:
     array = array[..., None]
@@ -157,7 +163,7 @@ def _to_rgb(array: np.ndarray, background: Optional[float], keep_alpha: bool) ->
       alpha = np.ones_like(rgb[..., :1])
     return np.ascontiguousarray(np.concatenate([rgb, alpha], axis=-1), dtype=np.float32)
   if alpha is not None and background is not None:
-    rgb = rgb * alpha + background * (1.0 - alpha)
+    rgb = over_background(rgb, alpha, background)
   return np.ascontiguousarray(rgb, dtype=np.float32)
 
 

@@ -17,7 +17,7 @@ its views exist, so an interrupted `stylize-scene` continues where it stopped.
 import dataclasses
 import os
 import re
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -75,26 +75,9 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
   Returns:
     summary dict {"out", "styles", "written", "skipped"}.
   """
-  if len(alphas) != len(style_paths):
-    raise UserError(f"--alphas: got {len(alphas)} values for {len(style_paths)} styles")
-  for a in alphas:
-    if not 0.0 <= a <= 1.0:
-      raise UserError(f"--alphas {a}: must be in [0, 1]")
   images_lib.check_scale(stylize_scale)
-  styles = [{"name": style_name(p, a), "source": os.path.abspath(p), "alpha": float(a)}
-            for p, a in zip(style_paths, alphas)]
-  if include_original:
-    styles.append({"name": ORIGINAL, "source": None, "alpha": 0.0})
+  styles, pictures = _styles(style_paths, alphas, include_original)
   names = [s["name"] for s in styles]
-  if len(set(names)) != len(names):
-    raise UserError(f"two styles have the same name ({', '.join(names)}); rename a file")
-  # Read every style image first: a bad one stops the run before anything is written.
-  pictures = {s["name"]: images_lib.read_image(s["source"], max_side=1024) for s in styles
-              if s["source"]}
-  for s in styles:
-    shape = pictures[s["name"]].shape if s["source"] else (16, 16)
-    if min(shape[:2]) < 16:
-      raise UserError(f"{s['source']}: style image is {shape[1]}x{shape[0]}, need at least 16x16")
   manifest = {
       "data": config_lib.to_dict(data_config), "height": scene.height, "width": scene.width,
       "n_views": len(scene.images), "splits": {k: [int(i) for i in v]
@@ -105,6 +88,53 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
       "content_stats": "view" if content_stats_fn is None else "scene"}
   if features is not None:  # (absent otherwise: the manifests of earlier versions stay valid)
     manifest.update(features=os.path.abspath(features), content_stats="scene")
+  _start(out_dir, manifest, scene.c2w)
+  content_stats = None
+  if content_stats_fn is not None and any(s["source"] for s in styles):
+    content_stats = _content_stats(out_dir, scene, content_stats_fn, stylize_scale)
+  remaining = sum(1 for st in styles if st["name"] not in manifest["done"]) * len(scene.images)
+  files.check_free_space(out_dir, remaining * png_bytes(scene.height, scene.width),
+                         f"the stylized views ({remaining} PNG files)")
+  written = skipped = 0
+  for style in styles:
+    if style["name"] in manifest["done"]:
+      skipped += len(scene.images)
+      continue
+    w, k = _write_style(scene, style, pictures.get(style["name"]), out_dir, stylize_fn,
+                        style_vector_fn, stylize_scale, content_stats, progress)
+    written, skipped = written + w, skipped + k
+    manifest["done"].append(style["name"])
+    files.write_json(os.path.join(out_dir, MANIFEST), manifest)
+  return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
+
+
+def _styles(style_paths: Sequence[str], alphas: Sequence[float], include_original: bool):
+  """The manifest's styles [{"name", "source", "alpha"}] and their pictures (name -> image),
+  every style image read and checked before anything is written."""
+  if len(alphas) != len(style_paths):
+    raise UserError(f"--alphas: got {len(alphas)} values for {len(style_paths)} styles")
+  for a in alphas:
+    if not 0.0 <= a <= 1.0:
+      raise UserError(f"--alphas {a}: must be in [0, 1]")
+  styles = [{"name": style_name(p, a), "source": os.path.abspath(p), "alpha": float(a)}
+            for p, a in zip(style_paths, alphas)]
+  if include_original:
+    styles.append({"name": ORIGINAL, "source": None, "alpha": 0.0})
+  names = [s["name"] for s in styles]
+  if len(set(names)) != len(names):
+    raise UserError(f"two styles have the same name ({', '.join(names)}); rename a file")
+  pictures = {s["name"]: images_lib.read_image(s["source"], max_side=1024) for s in styles
+              if s["source"]}
+  for s in styles:
+    shape = pictures[s["name"]].shape if s["source"] else (16, 16)
+    if min(shape[:2]) < 16:
+      raise UserError(f"{s['source']}: style image is {shape[1]}x{shape[0]}, need at least 16x16")
+  return styles, pictures
+
+
+def _start(out_dir: str, manifest: Dict[str, Any], c2w: np.ndarray) -> None:
+  """Writes the manifest and the poses of a new dataset, or checks that an existing one was
+  made the same way (its finished styles then go into manifest["done"])."""
   path = os.path.join(out_dir, MANIFEST)
   if os.path.exists(out_dir) and not os.path.isdir(out_dir):
     raise UserError(f"{out_dir}: is a file, expected a folder")
@@ -115,56 +145,54 @@ def stylize_scene(scene: Scene, data_config: config_lib.DataConfig, stylize_fn,
     if mismatch:
       raise UserError(f"{out_dir}: holds a stylized dataset made differently ({mismatch}); "
                       "use another --out, or the same options to continue")
+    names = [s["name"] for s in manifest["styles"]]
     manifest["done"] = [n for n in saved["done"] if n in names]
   try:
     os.makedirs(out_dir, exist_ok=True)
-    files.write_npy(os.path.join(out_dir, POSES), scene.c2w)
+    files.write_npy(os.path.join(out_dir, POSES), c2w)
     files.write_json(path, manifest)
   except PermissionError:
     raise UserError(f"{out_dir}: not writable") from None
 
-  content_stats = None
-  if content_stats_fn is not None and any(s["source"] for s in styles):
-    stats_path = os.path.join(out_dir, CONTENT_STATS)
-    if os.path.exists(stats_path):
-      content_stats = read_content_stats(out_dir)
-    else:
-      content_stats = content_stats_fn(scene.images[scene.split("train")], stylize_scale)
-      files.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
 
-  remaining = sum(1 for st in styles if st["name"] not in manifest["done"]) * len(scene.images)
-  files.check_free_space(out_dir, remaining * png_bytes(scene.height, scene.width),
-                         f"the stylized views ({remaining} PNG files)")
+def _content_stats(out_dir: str, scene: Scene, content_stats_fn, stylize_scale: int):
+  """The training views' content statistics: saved with the dataset, so a resumed run uses
+  the same."""
+  stats_path = os.path.join(out_dir, CONTENT_STATS)
+  if os.path.exists(stats_path):
+    return read_content_stats(out_dir)
+  content_stats = content_stats_fn(scene.images[scene.split("train")], stylize_scale)
+  files.write_npy(stats_path, np.concatenate(content_stats).astype(np.float32))
+  return content_stats
+
+
+def _write_style(scene: Scene, style: Dict[str, Any], picture, out_dir: str, stylize_fn,
+                 style_vector_fn, stylize_scale: int, content_stats, progress: bool):
+  """Writes one style's vector and every view not written yet; returns (written, skipped)."""
+  name = style["name"]
+  if name == ORIGINAL:
+    train = scene.split("train")
+    vector = np.mean([np.asarray(style_vector_fn(scene.images[i])) for i in train], axis=0)
+  else:
+    vector = np.asarray(style_vector_fn(picture))
+  files.write_npy(os.path.join(out_dir, name, VECTOR), vector)
   written = skipped = 0
-  for style in styles:
-    name = style["name"]
-    if name in manifest["done"]:
-      skipped += len(scene.images)
+  for i in progress_bar(range(len(scene.images)), desc=f"stylize {name}", disable=not progress):
+    target = view_file(out_dir, name, i)
+    if os.path.exists(target):
+      skipped += 1
       continue
-    if name == ORIGINAL:
-      train = scene.split("train")
-      vector = np.mean([np.asarray(style_vector_fn(scene.images[i])) for i in train], axis=0)
-    else:
-      vector = np.asarray(style_vector_fn(pictures[name]))
-    files.write_npy(os.path.join(out_dir, name, VECTOR), vector)
-    for i in progress_bar(range(len(scene.images)), desc=f"stylize {name}",
-                          disable=not progress):
-      target = view_file(out_dir, name, i)
-      if os.path.exists(target):
-        skipped += 1
-        continue
-      view = scene.images[i]
-      if name != ORIGINAL:
-        view = np.asarray(stylize_fn(i, view, pictures[name], style["alpha"], stylize_scale,
-                                     content_stats))
-        if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
-          a = scene.alphas[i][..., None].astype(np.float32) / 255.0
-          view = view * a + (1.0 - a)
-      images_lib.write_image(target, view)
-      written += 1
-    manifest["done"].append(name)
-    files.write_json(path, manifest)
-  return {"out": out_dir, "styles": names, "written": written, "skipped": skipped}
+    view = scene.images[i]
+    if name != ORIGINAL:
+      view = np.asarray(stylize_fn(i, view, picture, style["alpha"], stylize_scale,
+                                   content_stats))
+      if scene.alphas is not None:  # keep the white background of RGBA (Blender) views.
+        view = images_lib.over_background(view, scene.alphas[i][..., None].astype(np.float32)
+                                          / 255.0)
+    images_lib.write_image(target, view)
+    written += 1
+  return written, skipped
+
 
 
 def png_bytes(height: int, width: int) -> int:

@@ -153,8 +153,7 @@ def feature_field_frames(field, scene, base, base_nerf: str, encoder,
     sweep = render_feature_styles(scene, field.params, field.config, b["pose"], decoder, stats,
                                   vectors, chunk)
     if scene.white_background:
-      acc = g["accumulation"][..., None]
-      sweep = sweep * acc + (1.0 - acc)
+      sweep = images_lib.over_background(sweep, g["accumulation"][..., None])
     for k, frame in enumerate(sweep):
       frames[k].append(frame)
   return frames, geometry

@@ -6,7 +6,7 @@ import os
 import numpy as np
 
 from msnerf_jax.core.config import FeatureConfig
-from msnerf_jax.data.images import read_npy
+from msnerf_jax.data.images import over_background, read_npy
 from msnerf_jax.data.stylized import ORIGINAL
 from msnerf_jax.kinds import views
 from msnerf_jax.kinds.base import RunKind
@@ -73,7 +73,7 @@ def style_renderer(run, scene, chunk=None, grids=None, decoder=None):
       return frames
     acc = views.render_view(scene, run.params["nerf"], run.config.nerf, camera,
                             chunk)["accumulation"][..., None]
-    return frames * acc + (1.0 - acc)
+    return over_background(frames, acc)
   return render
 
 

@@ -198,18 +198,22 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     out = sampler.render_piece(functools.partial(_render_call, field_fn), params, host_state,
                                config, white_background, mesh, piece, styles)
     done = out["complete"][:size]
-    for k in IMAGE_OUTPUTS:
-      value = np.take(out[k], np.arange(size), axis=axis)
-      if k not in outputs:
-        outputs[k] = np.zeros((*value.shape[:axis], n, *value.shape[axis + 1:]), value.dtype)
-      index = (slice(None),) * axis + (take[done],)
-      outputs[k][index] = np.take(value, np.nonzero(done)[0], axis=axis)
+    _keep_complete(outputs, out, take, done, n, axis)
     pending = np.concatenate([take[~done], pending])
-  result = {}
-  for k, joined in outputs.items():
-    lead = joined.shape[:axis]
-    result[k] = joined.reshape(*lead, *shape, *joined.shape[axis + 1:])
-  return result
+  return {k: joined.reshape(*joined.shape[:axis], *shape, *joined.shape[axis + 1:])
+          for k, joined in outputs.items()}
+
+
+def _keep_complete(outputs: Dict[str, np.ndarray], out: Dict[str, np.ndarray],
+                   take: np.ndarray, done: np.ndarray, n: int, axis: int) -> None:
+  """Writes the complete rays (`done`) of one call's outputs (its first take.size rays, the
+  ray axis at `axis`) into `outputs` [..., n, ...] at their indices `take`."""
+  for k in IMAGE_OUTPUTS:
+    value = np.take(out[k], np.arange(take.size), axis=axis)
+    if k not in outputs:
+      outputs[k] = np.zeros((*value.shape[:axis], n, *value.shape[axis + 1:]), value.dtype)
+    index = (slice(None),) * axis + (take[done],)
+    outputs[k][index] = np.take(value, np.nonzero(done)[0], axis=axis)
 
 
 # ----------------------------------------------------------------------------- feature fields

@@ -1,7 +1,7 @@
 """Videos and grids of a multi-style run along its camera path (what `msnerf render` and the
 pipeline's renders stage write). The style vectors come from `msnerf_jax.style.vectors`."""
 
-from typing import Any, Callable, List, Optional, Sequence
+from typing import Any, List, Optional, Sequence
 
 import numpy as np
 

@@ -1,8 +1,7 @@
 """Stylizing images with a trained AdaIN decoder: cover-crop styles, alpha, blends, colour."""
 
 import dataclasses
-import os
-from typing import Any, Dict, Optional, Sequence, Tuple
+from typing import Any, Optional, Sequence, Tuple
 
 import chex
 import jax
@@ -12,11 +11,9 @@ import numpy as np
 from msnerf_jax.style import adain as adain_lib
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.data import images as images_lib
-from msnerf_jax.data import stylized as stylized_lib
 from msnerf_jax.data.images import cover_crop
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.models import decoder as decoder_lib
-from msnerf_jax.models import vgg
 from msnerf_jax.core.progress import progress_bar
 
 # (mean, std) [1, C] channel statistics.

@@ -25,7 +25,6 @@ from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.style import transfer as stylize_lib
 from msnerf_jax.style.adain import encode
 from msnerf_jax.core.config import FeatureConfig
-from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.images import read_npy
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.core.errors import UserError

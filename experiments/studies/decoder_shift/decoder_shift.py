@@ -16,7 +16,7 @@ shifted stylization of the window (overlap only, 16-pixel margins dropped), for:
   grid-avg N:  the same, with the cell grid moved by N offsets ({0, 4}^2 for N = 4, the
                diagonal {0, (4, 4)} for N = 2), each decode moved back and the N averaged;
   resampled:   the decoder alone: the unshifted window's AdaIN map resampled bilinearly by
-               s / 8 cells (train_adain.resample_cells, what a feature field's render does
+               s / 8 cells (adain_losses.resample_cells, what a feature field's render does
                when the camera moves) and decoded; the encoder's aliasing left out;
 and the AdaIN style distance (relu1_1..relu4_1) of each method's unshifted stylization to
 the style, against per-frame AdaIN's (what averaging costs). A feature field sampled on the
@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.style import adain
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.eval import metrics
 from msnerf_jax.style import transfer as stylize
 from msnerf_jax.core.config import DataConfig
@@ -42,7 +43,7 @@ from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
-from msnerf_jax.train.adain import resample_cells
+from msnerf_jax.train.adain_losses import resample_cells
 
 MARGIN = 16  # enlarged pixels dropped at every border (the decoder's zero/reflect padding).
 GRIDS = {"per-frame": [(0, 0)], "grid-avg 2": [(0, 0), (4, 4)],
@@ -110,7 +111,7 @@ def main(argv=None):
   scene, _ = load_scene(DataConfig(path=args.data, downscale=args.downscale))
   train = scene.split("train")
   views = [scene.images[i] for i in train[np.linspace(0, len(train) - 1, args.views).astype(int)]]
-  decoder, encoder = stylize.load_decoder(args.decoder), vgg.load_vgg_params()
+  decoder, encoder = stylized_scenes.load_decoder(args.decoder), vgg.load_vgg_params()
   stylize_window = make_stylizer(decoder, encoder)
   resampled = make_resampled(decoder, encoder)
   methods = list(grids) + ["resampled"]

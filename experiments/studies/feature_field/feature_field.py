@@ -36,6 +36,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from msnerf_jax.style import adain
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.eval import consistency
 from msnerf_jax.eval import metrics
 from msnerf_jax.style import transfer as stylize
@@ -44,11 +45,10 @@ from msnerf_jax.kinds import views
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.style.features import painted_size, style_vector_of_stats
 from msnerf_jax.models import vgg
-from msnerf_jax.kinds.runs import CONTENT_STATS, content_stats, load_run, load_run_and_scene
-
-
+from msnerf_jax.kinds.runs import load_run, load_run_and_scene
+from msnerf_jax.kinds.features import CONTENT_STATS, content_stats
 def whiten(frame, acc, white):
-  return frame * acc[..., None] + (1.0 - acc[..., None]) if white else frame
+  return images_lib.over_background(frame, acc[..., None]) if white else frame
 
 
 def content_loss(encoder, frames, photos, style, scale):
@@ -112,7 +112,7 @@ def main():
   run, scene = load_run_and_scene(args.features, "features")
   nerf = load_run(run.record["nerf_run"], "nerf")
   decoder_dir = args.decoder or run.record["decoder"]
-  decoder = stylize.load_decoder(decoder_dir)
+  decoder = stylized_scenes.load_decoder(decoder_dir)
   encoder = vgg.load_vgg_params()
   stats = content_stats(run) if args.stats == "rendered" else tuple(
       np.load(os.path.join(args.features, CONTENT_STATS)))

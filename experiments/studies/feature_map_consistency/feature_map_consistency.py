@@ -40,9 +40,8 @@ from msnerf_jax.kinds import views
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.style.features import CELL
 from msnerf_jax.models import vgg
-from msnerf_jax.kinds.runs import content_stats, load_run, load_run_and_scene
-
-
+from msnerf_jax.kinds.runs import load_run, load_run_and_scene
+from msnerf_jax.kinds.features import content_stats
 def encoder_cells(encoder, rgb, scale):
   """relu4_1 [h, w, 512] of a frame enlarged `scale` x and padded to whole cells, normalised
   by its own channel statistics (per-frame AdaIN's content)."""

@@ -6,7 +6,6 @@ import dataclasses
 import functools
 from typing import Dict, Optional
 
-import chex
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -3,7 +3,7 @@ params["coarse"], then n_fine more drawn from the coarse weights by inverse-tran
 params["fine"] sees the sorted union of both sets."""
 
 import dataclasses
-from typing import Dict, Optional
+from typing import Dict
 
 import jax
 import jax.numpy as jnp

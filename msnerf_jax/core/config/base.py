@@ -1,0 +1,100 @@
+"""What every config shares: the one-line refusals `validate()` raises, overrides, and the
+JSON round trip (run.json) with the first difference between two saved configs."""
+
+import dataclasses
+from typing import Any, Dict, Optional, Type, TypeVar
+
+from msnerf_jax.core.errors import UserError
+
+T = TypeVar("T")
+
+
+def bad_setting(config: Any, name: str, problem: str, flag: Optional[str] = None) -> None:
+  """Raises UserError `--NAME VALUE: problem` (the option that sets config.NAME; `flag`
+  where the command line names it otherwise, e.g. --lr for lr_init)."""
+  raise UserError(f"--{(flag or name).replace('_', '-')} {getattr(config, name)}: {problem}")
+
+
+def check_at_least(config: Any, names, low: int = 1) -> None:
+  """bad_setting for the first of `names` below `low` (an integer setting)."""
+  for name in names:
+    if getattr(config, name) < low:
+      bad_setting(config, name, f"must be >= {low}")
+
+
+def check_positive(config: Any, names, flag: Optional[str] = None) -> None:
+  """bad_setting for the first of `names` that is not a finite number > 0."""
+  for name in names:
+    if not 0 < getattr(config, name) < float("inf"):
+      bad_setting(config, name, "must be positive", flag)
+
+
+def check_hash_settings(config: Any) -> None:
+  """UserError naming the first hash-grid setting (hash_levels, hash_features,
+  hash_table_size, hash_min_res, hash_max_res) of a config that cannot work."""
+  for name in ("hash_levels", "hash_features", "hash_min_res"):
+    if getattr(config, name) < 1:
+      bad_setting(config, name, "must be >= 1")
+  t = config.hash_table_size
+  if t < 2 or t & (t - 1):
+    bad_setting(config, "hash_table_size", "must be a power of two (>= 2)")
+  if config.hash_max_res < config.hash_min_res:
+    bad_setting(config, "hash_max_res", f"finest resolution below the coarsest (--hash-min-res "
+                                        f"{config.hash_min_res})")
+
+
+def override(config: T, **overrides: Any) -> T:
+  """`config` with the overrides that are not None. On a NerfConfig, a net_depth given
+  without skip_layer puts the skip connection after the middle layer."""
+  overrides = {k: v for k, v in overrides.items() if v is not None}
+  if "net_depth" in overrides and hasattr(config, "skip_layer"):
+    overrides.setdefault("skip_layer", overrides["net_depth"] // 2)
+  return dataclasses.replace(config, **overrides)
+
+
+def to_dict(config: Any) -> Dict[str, Any]:
+  return dataclasses.asdict(config)
+
+
+def from_dict(cls: Type[T], values: Dict[str, Any], source: str = "config") -> T:
+  """Builds `cls` from a dict, naming unknown or mistyped keys in a UserError."""
+  if not isinstance(values, dict):
+    raise UserError(f"{source}: expected a JSON object, got {type(values).__name__}")
+  fields = {f.name: f for f in dataclasses.fields(cls)}
+  unknown = sorted(set(values) - set(fields))
+  if unknown:
+    raise UserError(f"{source}: unknown {cls.__name__} keys {unknown}")
+  clean = {}
+  for name, value in values.items():
+    default = fields[name].default
+    factory = fields[name].default_factory
+    if factory is not dataclasses.MISSING and dataclasses.is_dataclass(factory):
+      clean[name] = from_dict(factory, value, f"{source}: {name}")  # a nested config
+      continue
+    if default is not dataclasses.MISSING and default is not None and value is not None:
+      kind = type(default)
+      if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+      if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise UserError(f"{source}: {name} should be {kind.__name__}, got {value!r}")
+    clean[name] = value
+  return cls(**clean)
+
+
+# Keys a difference is reported on first: what kind of model a run is.
+NAMED_FIRST = ("trunk", "sampler")
+
+
+def diff(saved: Dict[str, Any], current: Dict[str, Any], prefix: str = "") -> Optional[str]:
+  """The first differing key between two nested dicts, as 'key: saved A, now B', or None
+  (at each level, the NAMED_FIRST keys in their order, then the others alphabetically)."""
+  rank = lambda k: (NAMED_FIRST.index(k) if k in NAMED_FIRST else len(NAMED_FIRST), k)
+  for key in sorted(set(saved) | set(current), key=rank):
+    a, b = saved.get(key, "<missing>"), current.get(key, "<missing>")
+    if isinstance(a, dict) and isinstance(b, dict):
+      found = diff(a, b, f"{prefix}{key}.")
+      if found:
+        return found
+    elif a != b:
+      return f"{prefix}{key}: saved {a!r}, now {b!r}"
+  return None
