@@ -54,8 +54,8 @@ def test_help_has_no_default_none_on_required_options():
 @pytest.mark.slow
 def test_generated_options_and_config_file_reach_run_json(tiny_blender, tmp_path):
   first = str(tmp_path / "first")
-  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", first, "--steps", "1",
-             "--batch-rays", "64", "--net-width", "16", "--n-coarse", "4", "--n-fine", "4",
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", first, "--preset", "cpu",
+             "--steps", "1", "--batch-rays", "64", "--net-width", "16", "--n-coarse", "4", "--n-fine", "4",
              "--lr-init", "0.01", "--raw-noise-std", "0.5", "--lindisp", "--keep-checkpoints",
              "1", "--no-perturb", "--pos-freqs", "3", "--llff-holdout", "4")
   assert r.returncode == 0, r.stderr

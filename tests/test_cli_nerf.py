@@ -48,14 +48,15 @@ def test_train_eval_render_lego(lego, tmp_path):
 @pytest.mark.slow
 def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
   run = str(tmp_path / "run")
-  common = ["nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "64",
-            "--checkpoint-every", "2"]
+  common = ["nerf", "train", "--data", tiny_blender, "--out", run, "--preset", "cpu",
+            "--batch-rays", "64", "--checkpoint-every", "2"]
   r = msnerf(*common, "--steps", "2")
   assert r.returncode == 0, r.stderr[-3000:]
   r = msnerf(*common, "--steps", "4")  # same command, more steps: resumes
   assert r.returncode == 0 and "resumed from 2" in r.stdout, r.stdout + r.stderr[-2000:]
   assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
-  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "128")
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--preset", "cpu",
+             "--batch-rays", "128")
   assert_one_line_error(r, "another config .*batch_rays")
   assert sorted(os.listdir(os.path.join(run, "checkpoints"))) == ["2", "4"]
 
@@ -63,8 +64,8 @@ def test_resume_and_refuse_another_config(tiny_blender, tmp_path):
 @pytest.mark.slow  # 20 s; the flags' parsing is also covered by test_cli_config
 def test_architecture_flags_reach_the_config_and_the_model(tiny_blender, tmp_path):
   run = str(tmp_path / "run")
-  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--batch-rays", "32",
-             "--steps", "1", "--net-depth", "4", "--net-width", "24", "--n-coarse", "4",
+  r = msnerf("nerf", "train", "--data", tiny_blender, "--out", run, "--preset", "cpu",
+             "--batch-rays", "32", "--steps", "1", "--net-depth", "4", "--net-width", "24", "--n-coarse", "4",
              "--n-fine", "6")
   assert r.returncode == 0, r.stderr[-3000:]
   config = json.load(open(os.path.join(run, "run.json")))["config"]

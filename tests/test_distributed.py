@@ -33,7 +33,8 @@ def inputs(tmp_path_factory, request):
 
 def command(trainer, inputs, out, steps, every):
   if trainer == "nerf":
-    argv = ["nerf", "train", "--data", inputs["scene"], "--batch-rays", "64", "--net-depth", "2",
+    argv = ["nerf", "train", "--data", inputs["scene"], "--preset", "cpu", "--batch-rays", "64",
+            "--net-depth", "2",
             "--net-width", "32", "--n-coarse", "8", "--n-fine", "8"]
   else:
     argv = ["multistyle", "train", "--nerf", inputs["nerf"], "--stylized", inputs["stylized"],

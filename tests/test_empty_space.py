@@ -265,7 +265,7 @@ def test_cli_eval_reports_opacity_on_empty_space_and_object(tmp_path):
   folder = demo.write_scene(str(tmp_path / "scene"), size=16, n_train=4, n_val=2,
                             progress=False)
   run = str(tmp_path / "run")
-  r = msnerf("nerf", "train", "--data", folder, "--out", run, "--steps", "2",
+  r = msnerf("nerf", "train", "--data", folder, "--out", run, "--preset", "cpu", "--steps", "2",
              "--batch-rays", "64", "--net-width", "16", "--n-coarse", "4", "--n-fine", "4")
   assert r.returncode == 0, r.stderr
   assert json.load(open(os.path.join(run, "run.json")))["config"]["random_background"] is True

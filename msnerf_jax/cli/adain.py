@@ -60,15 +60,7 @@ def _register_train(verbs, formatter):
                      help="weight of the content loss")
   train.add_argument("--upsample", choices=("nearest", "bilinear"), default=_DEFAULTS.upsample,
                      help="decoder upsampling (paper: nearest, reference code: bilinear)")
-  train.add_argument("--shift-weight", type=float, default=_DEFAULTS.shift_weight,
-                     help="weight of the shift-consistency loss: a crop moved by 1-7 pixels "
-                          "(less than a relu4_1 cell) must decode to the moved decode, so strokes "
-                          "follow the content, not the encoder's 8-pixel grid (0 = off, the paper)")
-  train.add_argument("--shift-source", default=_DEFAULTS.shift_source,
-                     metavar="{" + ",".join(config_lib.SHIFT_SOURCES) + "}",
-                     help="the moved crop's relu4_1 map in the shift loss: 'photo', the moved "
-                          "pixels encoded again (per-frame AdaIN's case); 'features', the crop's "
-                          "map resampled bilinearly by the shift (a feature field's case)")
+  _add_shift_arguments(train)
   train.add_argument("--init-from", default=_DEFAULTS.init_from, metavar="ADAIN_RUN",
                      help="start from this AdaIN run's decoder instead of a random init "
                           "(fine-tuning, e.g. with --shift-weight; its upsampling may differ "
@@ -86,6 +78,19 @@ def _register_train(verbs, formatter):
   train.add_argument("--no-progress", action="store_true", help="no progress bar")
   add_config_option(train, "AdaIN decoder")
   train.set_defaults(func=_train)
+
+
+def _add_shift_arguments(train):
+  """The shift-consistency loss's options (beyond the AdaIN paper)."""
+  train.add_argument("--shift-weight", type=float, default=_DEFAULTS.shift_weight,
+                     help="weight of the shift-consistency loss: a crop moved by 1-7 pixels "
+                          "(less than a relu4_1 cell) must decode to the moved decode, so strokes "
+                          "follow the content, not the encoder's 8-pixel grid (0 = off, the paper)")
+  train.add_argument("--shift-source", default=_DEFAULTS.shift_source,
+                     metavar="{" + ",".join(config_lib.SHIFT_SOURCES) + "}",
+                     help="the moved crop's relu4_1 map in the shift loss: 'photo', the moved "
+                          "pixels encoded again (per-frame AdaIN's case); 'features', the crop's "
+                          "map resampled bilinearly by the shift (a feature field's case)")
 
 
 def _register_stylize(verbs, formatter):

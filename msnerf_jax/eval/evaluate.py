@@ -200,23 +200,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   manifest = read_manifest(run.record["stylized"])
   sources = {s["name"]: s for s in manifest["styles"] if s["source"]}
   vectors = [style_vectors(r) for r in runs]
-  names = list(styles) if styles else [n for n in vectors[0] if n in sources]
-  for name in names:
-    for d, v in zip(run_dirs, vectors):
-      if name not in sources or name not in v:
-        raise UserError(f"style {name!r}: not a stylized training style of {d} "
-                        f"(has {', '.join(n for n in v if n in sources)})")
-  singles = {}
-  for d in single_style_runs:
-    single = load_run(d)
-    style = single.record.get("style") or {}
-    if single.kind != "nerf" or "name" not in style:
-      raise UserError(f"{d}: not a single-style NeRF run (train one with `msnerf nerf train "
-                      "--stylized DIR --style NAME`)")
-    if style["name"] not in names:
-      raise UserError(f"{d}: trained on style {style['name']!r}, which is not evaluated here "
-                      f"({', '.join(names)})")
-    singles[style["name"]] = single
+  names = _evaluated_styles(run_dirs, vectors, sources, styles)
+  singles = _single_style_runs(single_style_runs, names)
   decoder_dir = decoder_dir or manifest.get("decoder")
   if not decoder_dir:
     raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
@@ -251,11 +236,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                    [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]} for s in sw])
                   for method, sw in zip(methods, swept)]
     if name in singles:
-      single = singles[name]
-      renders = [render_view(scene, single.params, single.config, c2w, chunk)
-                 for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
-                                 leave=False)]
-      candidates.append(("nerf-single-style", [r["rgb"] for r in renders], renders))
+      candidates.append(_single_style_frames(singles[name], name, scene, poses, chunk,
+                                             progress))
     for i, (frames_k, geometry) in enumerate(painted):
       label = "feature-field" + (f"#{i + 1}" if len(painted) > 1 else "")
       candidates.append((label, frames_k[m], geometry))
@@ -269,6 +251,42 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   files = write_tables(rows, out_dir)
   files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure_rows))
   return {"rows": rows, "files": files, "seconds": time.time() - t0}
+
+
+def _evaluated_styles(run_dirs, vectors, sources, styles) -> List[str]:
+  """The styles to evaluate (default: every stylized training style), each checked to be a
+  stylized training style of every run."""
+  names = list(styles) if styles else [n for n in vectors[0] if n in sources]
+  for name in names:
+    for d, v in zip(run_dirs, vectors):
+      if name not in sources or name not in v:
+        raise UserError(f"style {name!r}: not a stylized training style of {d} "
+                        f"(has {', '.join(n for n in v if n in sources)})")
+  return names
+
+
+def _single_style_runs(run_dirs: Sequence[str], names: Sequence[str]) -> Dict[str, Any]:
+  """style name -> the loaded NeRF run trained on that style alone, each checked."""
+  singles = {}
+  for d in run_dirs:
+    single = load_run(d)
+    style = single.record.get("style") or {}
+    if single.kind != "nerf" or "name" not in style:
+      raise UserError(f"{d}: not a single-style NeRF run (train one with `msnerf nerf train "
+                      "--stylized DIR --style NAME`)")
+    if style["name"] not in names:
+      raise UserError(f"{d}: trained on style {style['name']!r}, which is not evaluated here "
+                      f"({', '.join(names)})")
+    singles[style["name"]] = single
+  return singles
+
+
+def _single_style_frames(single, name, scene, poses, chunk, progress):
+  """(label, frames, geometry) of a single-style NeRF along the path."""
+  renders = [render_view(scene, single.params, single.config, c2w, chunk)
+             for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
+                                     leave=False)]
+  return "nerf-single-style", [r["rgb"] for r in renders], renders
 
 
 def write_tables(rows: List[Dict[str, Any]], out_dir: str) -> List[str]:

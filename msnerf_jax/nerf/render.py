@@ -147,6 +147,14 @@ def flat_rays(rays: Dict[str, jnp.ndarray]):
   return shape, flat, blank
 
 
+def padded(flat: Dict[str, np.ndarray], blank: Dict[str, np.ndarray], take: np.ndarray,
+           size: int) -> Dict[str, np.ndarray]:
+  """The rays `take` of flat_rays' rays, padded to `size` rays with its blank ray: one
+  rendering call's fixed-size piece (one compilation serves every call)."""
+  return {k: np.concatenate([v[take], np.repeat(blank[k], size - take.size, 0)])
+          for k, v in flat.items()}
+
+
 def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config,
                  white_background: bool = False, chunk: Optional[int] = None,
                  styles: Optional[jnp.ndarray] = None, mesh: Optional[Mesh] = None
@@ -193,8 +201,7 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
   while pending.size:
     take, pending = pending[:per_call], pending[per_call:]
     size = take.size
-    piece = {k: np.concatenate([v[take], np.repeat(blank[k], per_call - size, 0)])
-             for k, v in flat.items()}
+    piece = padded(flat, blank, take, per_call)
     out = sampler.render_piece(functools.partial(_render_call, field_fn), params, host_state,
                                config, white_background, mesh, piece, styles)
     done = out["complete"][:size]
@@ -261,8 +268,7 @@ def render_feature_image(field, feature_fn, params, rays: Dict[str, jnp.ndarray]
   parts = []
   for start in range(0, n, chunk):
     size = min(chunk, n - start)
-    piece = {k: np.concatenate([v[start:start + size], np.repeat(blank[k], chunk - size, 0)])
-             for k, v in flat.items()}
+    piece = padded(flat, blank, np.arange(start, start + size), chunk)
     budget = sampler.piece_budget(host_state, config, piece)
     out = _render_feature_chunk(field, feature_fn, params, piece, config, top_k, budget)
     parts.append({k: np.asarray(out[k])[:size] for k in ("features", "accumulation")})

@@ -57,21 +57,8 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
     UserError when the loss becomes NaN/inf (naming the step; the last good checkpoint
     stays the latest one).
   """
-  checkpoints = ckpt_lib.Checkpoints(run_dir, keep=keep_checkpoints)
-  try:
-    start = 0
-    if checkpoints.latest_step() is not None:
-      state = state_lib.restore_state(state,
-                                      checkpoints.restore(state_lib.checkpoint_tree(state)))
-      start = int(state.step)
-    saves = len({s for s in range(start + 1, steps + 1) if s % checkpoint_every == 0} | {steps})
-    kept = len(checkpoints.all_steps())
-    # Orbax writes a new checkpoint before it deletes the oldest: at most keep + 1 at once.
-    checkpoints.check_space(state_lib.checkpoint_tree(state),
-                            max(0, min(keep_checkpoints + 1, kept + saves) - kept))
-  except BaseException:
-    checkpoints.close()
-    raise
+  checkpoints, state, start = _resume(run_dir, state, steps, checkpoint_every,
+                                      keep_checkpoints)
   state = parallel.put_state(state)
   primary = distributed.is_primary()
   history = history and primary
@@ -130,6 +117,28 @@ def fit(state: state_lib.TrainState, step_fn: Callable, batch_fn: Callable[[int]
   return {"run_dir": run_dir, "steps": steps, "resumed_from": start,
           "seconds": time.time() - t0, "devices": parallel.size,
           "processes": jax.process_count(), **final}
+
+
+def _resume(run_dir: str, state: state_lib.TrainState, steps: int, checkpoint_every: int,
+            keep_checkpoints: int):
+  """(the run's checkpoints, the state restored from the latest one or as given, its step),
+  once the checkpoints still to save are known to fit on the disk (DiskError if not)."""
+  checkpoints = ckpt_lib.Checkpoints(run_dir, keep=keep_checkpoints)
+  try:
+    start = 0
+    if checkpoints.latest_step() is not None:
+      state = state_lib.restore_state(state,
+                                      checkpoints.restore(state_lib.checkpoint_tree(state)))
+      start = int(state.step)
+    saves = len({s for s in range(start + 1, steps + 1) if s % checkpoint_every == 0} | {steps})
+    kept = len(checkpoints.all_steps())
+    # Orbax writes a new checkpoint before it deletes the oldest: at most keep + 1 at once.
+    checkpoints.check_space(state_lib.checkpoint_tree(state),
+                            max(0, min(keep_checkpoints + 1, kept + saves) - kept))
+  except BaseException:
+    checkpoints.close()
+    raise
+  return checkpoints, state, start
 
 
 def append_history(run_dir: str, history):
