@@ -96,7 +96,8 @@ def test_given_options_are_what_the_command_line_sets():
   assert not {"batch_rays", "seed", "lr", "density_aware", "config"} & given
   # The defaults are back afterwards.
   args = parser.parse_args(["multistyle", "train", "--nerf", "a", "--stylized", "b", "--out", "c"])
-  assert args.steps == config_lib.MultistyleConfig().steps and args.config is None
+  # (a config option's default is None: "as the config says"; --parallel has its own).
+  assert args.steps is None and args.config is None and args.parallel == "shard_map"
 
 
 @pytest.mark.parametrize("kind, argv, field, value", [

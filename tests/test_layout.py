@@ -129,3 +129,15 @@ def test_no_import_runs_upward():
     if above:
       upward[module] = above
   assert upward == {}
+
+
+def test_the_command_line_starts_without_jax():
+  """`msnerf --help` and every error about options come before any heavy import: building the
+  parser imports neither jax nor flax (each verb imports what it runs)."""
+  import subprocess  # pylint: disable=g-import-not-at-top
+  import sys  # pylint: disable=g-import-not-at-top
+  code = ("import sys; from msnerf_jax import cli; cli.build_parser(); "
+          "print(sorted(m for m in ('jax', 'flax', 'optax', 'orbax') if m in sys.modules))")
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                       cwd=os.path.dirname(PACKAGE))
+  assert out.stdout.strip() == "[]"

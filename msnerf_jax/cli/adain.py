@@ -3,11 +3,15 @@
 import os
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.kinds import stylized_scenes
-from msnerf_jax.cli.config_args import add_config_option, start_config
+from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
+                                        config_overrides, start_config)
 from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.AdainConfig()
+# The options of `msnerf adain train` after its folders, in this order (the encoder is fixed).
+_MAIN = ("steps", "size", "resize", "batch", "lr", "lr_decay", "style_weight", "content_weight",
+         "upsample", "shift_weight", "shift_source", "init_from", "holdout_every", "seed",
+         "sample_every", "checkpoint_every", "keep_checkpoints")
 
 
 def register(commands, formatter):
@@ -34,63 +38,15 @@ def _register_train(verbs, formatter):
   train.add_argument("--content", nargs="+", default=[], metavar="DIR",
                      help="folder(s) of content images (any size; JPEG/PNG/...); each folder is "
                           "sampled equally often")
-  train.add_argument("--content-features", default=_DEFAULTS.content_features, metavar="FEATURE_RUN",
-                     help="a feature run (`msnerf features train`): its rendered relu4_1 maps of "
-                          "the training views are content too, stylized as its views are painted, "
-                          "so the decoder learns to paint the field's own (softer) features; "
-                          "rendered once into RUN_DIR/content_features.npy")
-  train.add_argument("--feature-share", type=float, default=_DEFAULTS.feature_share,
-                     help="with --content-features: the share of each batch cropped from the "
-                          "feature maps (1: feature maps only, --content not needed)")
+  add_config_arguments(train, config_lib.AdainConfig, _DEFAULTS,
+                       names=("content_features", "feature_share"))
   train.add_argument("--styles", required=True, metavar="DIR", help="folder of style images")
   train.add_argument("--out", required=True, metavar="RUN_DIR",
                      help="run folder for run.json, checkpoints/ and samples/")
-  train.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="total optimisation steps")
-  train.add_argument("--size", type=int, default=_DEFAULTS.size,
-                     help="side of the random square training crops (multiple of 8)")
-  train.add_argument("--resize", type=int, default=_DEFAULTS.resize,
-                     help="images are resized so their shorter side is this before cropping")
-  train.add_argument("--batch", type=int, default=_DEFAULTS.batch, help="crops per step")
-  train.add_argument("--lr", type=float, default=_DEFAULTS.lr, help="Adam learning rate")
-  train.add_argument("--lr-decay", type=float, default=_DEFAULTS.lr_decay,
-                     help="lr / (1 + lr_decay * step) (reference code)")
-  train.add_argument("--style-weight", type=float, default=_DEFAULTS.style_weight,
-                     help="lambda: weight of the style loss (paper 10, reference code 1)")
-  train.add_argument("--content-weight", type=float, default=_DEFAULTS.content_weight,
-                     help="weight of the content loss")
-  train.add_argument("--upsample", choices=("nearest", "bilinear"), default=_DEFAULTS.upsample,
-                     help="decoder upsampling (paper: nearest, reference code: bilinear)")
-  _add_shift_arguments(train)
-  train.add_argument("--init-from", default=_DEFAULTS.init_from, metavar="ADAIN_RUN",
-                     help="start from this AdaIN run's decoder instead of a random init "
-                          "(fine-tuning, e.g. with --shift-weight; its upsampling may differ "
-                          "from --upsample)")
-  train.add_argument("--holdout-every", type=int, default=_DEFAULTS.holdout_every,
-                     help="if > 0, every n-th image of each content folder is never trained on "
-                          "(listed in RUN_DIR/holdout.txt for evaluation)")
-  train.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed (init and crops)")
-  train.add_argument("--sample-every", type=int, default=_DEFAULTS.sample_every,
-                     help="write samples/step_N.png (content | style | output) every N steps")
-  train.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
-                     help="save a checkpoint every N steps (and at the end)")
-  train.add_argument("--keep-checkpoints", type=int, default=_DEFAULTS.keep_checkpoints,
-                     help="how many recent checkpoints to keep")
+  add_config_arguments(train, config_lib.AdainConfig, _DEFAULTS, names=_MAIN)
   train.add_argument("--no-progress", action="store_true", help="no progress bar")
   add_config_option(train, "AdaIN decoder")
   train.set_defaults(func=_train)
-
-
-def _add_shift_arguments(train):
-  """The shift-consistency loss's options (beyond the AdaIN paper)."""
-  train.add_argument("--shift-weight", type=float, default=_DEFAULTS.shift_weight,
-                     help="weight of the shift-consistency loss: a crop moved by 1-7 pixels "
-                          "(less than a relu4_1 cell) must decode to the moved decode, so strokes "
-                          "follow the content, not the encoder's 8-pixel grid (0 = off, the paper)")
-  train.add_argument("--shift-source", default=_DEFAULTS.shift_source,
-                     metavar="{" + ",".join(config_lib.SHIFT_SOURCES) + "}",
-                     help="the moved crop's relu4_1 map in the shift loss: 'photo', the moved "
-                          "pixels encoded again (per-frame AdaIN's case); 'features', the crop's "
-                          "map resampled bilinearly by the shift (a feature field's case)")
 
 
 def _register_stylize(verbs, formatter):
@@ -123,23 +79,17 @@ def _register_stylize(verbs, formatter):
 def _train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain
-  built = config_lib.AdainConfig(
-      size=args.size, resize=args.resize, batch=args.batch, steps=args.steps, lr=args.lr,
-      lr_decay=args.lr_decay, content_weight=args.content_weight, style_weight=args.style_weight,
-      upsample=args.upsample, shift_weight=args.shift_weight,
-      shift_source=args.shift_source,
-      init_from=os.path.abspath(args.init_from) if args.init_from else "",
-      content_features=os.path.abspath(args.content_features) if args.content_features else "",
-      feature_share=args.feature_share,
-      holdout_every=args.holdout_every, seed=args.seed,
-      sample_every=max(1, args.sample_every), checkpoint_every=max(1, args.checkpoint_every),
-      keep_checkpoints=max(1, args.keep_checkpoints))
+  paths = {name: os.path.abspath(getattr(args, name)) for name in ("init_from", "content_features")
+           if getattr(args, name)}
+  built = config_lib.override(config_lib.AdainConfig(),
+                              **{**config_overrides(args, config_lib.AdainConfig), **paths})
   config = start_config(args, "adain", built)
   train_adain.train(config, args.content, args.styles, args.out, progress=not args.no_progress)
 
 
 def _stylize(args):
   # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import stylized_scenes
   from msnerf_jax.style import transfer as stylize_lib
   from msnerf_jax.data import images as images_lib
   from msnerf_jax.models import vgg

@@ -2,79 +2,34 @@
 
 import argparse
 import dataclasses
-from typing import Any, Dict, Iterable, Set, Type
+from typing import Any, Dict, Iterable, Optional, Sequence, Set, Type
 
-# Help for the fields that have no hand-written option of their own.
-HELP = {
-    # NerfConfig
-    "pos_freqs": "positional-encoding frequencies of the points",
-    "dir_freqs": "positional-encoding frequencies of the view directions",
-    "skip_layer": "trunk layer whose output gets the encoded input again",
-    "lindisp": "sample linearly in inverse depth instead of depth",
-    "perturb": "jitter the stratified samples while training",
-    "raw_noise_std": "std of the noise added to the raw density while training",
-    "lr_init": "initial learning rate",
-    "lr_final": "learning rate reached at --lr-decay-steps (exponential decay)",
-    "lr_decay_steps": "steps over which the learning rate decays to --lr-final",
-    "precrop_steps": "Blender: steps that sample only the central crop of each view",
-    "precrop_frac": "side of that central crop, as a fraction of the view",
-    "keep_checkpoints": "checkpoints kept in RUN/checkpoints",
-    "render_chunk": "rays per jitted rendering call (bounds memory)",
-    "mlp_chunk": "samples per MLP call inside a step (0 = all at once)",
-    "trunk": "the trunk: mlp (the reference MLP) or hash (multiresolution hash encoding)",
-    "hash_levels": "hash trunk: resolution levels",
-    "hash_features": "hash trunk: features per level",
-    "hash_table_size": "hash trunk: table entries per level (a power of two)",
-    "hash_min_res": "hash trunk: coarsest grid resolution",
-    "hash_max_res": "hash trunk: finest grid resolution",
-    "sampler": "where to sample: hierarchical (coarse + fine networks) or grid (one network, "
-               "only in the occupied cells of an occupancy grid)",
-    "scene_box": "half side of the scene's box around the origin, for the hash trunk and the "
-                 "grid (0 = Blender and NDC 1.5, captures: the farthest camera)",
-    "grid_resolution": "grid sampler: cells per side of the occupancy grid",
-    "march_steps": "grid sampler: candidate samples per ray across the box",
-    "march_segments": "grid sampler: rendering marches in this many segments, a ray stopping "
-                      "after one once its transmittance is below 1e-4",
-    "samples_per_ray": "grid sampler: sample budget per ray (shared by a batch's rays)",
-    "grid_every": "grid sampler: steps between refreshes of the grid",
-    "grid_warmup": "grid sampler: steps during which a refresh visits every cell",
-    "grid_decay": "grid sampler: decay of a cell's density estimate at each refresh",
-    "grid_threshold": "grid sampler: optical depth per step above which a cell is occupied",
-    # MultistyleConfig
-    "style_dim": "length of the style vectors",
-    "style_hidden": "width of the style MLP's first hidden layer",
-    "style_hidden2": "width of the style MLP's second hidden layer",
-    "normalize_styles": "standardise each style vector before the style MLPs",
-    # DataConfig
-    "format": "scene format: auto, blender, llff, transforms (nerfstudio / instant-ngp "
-              "transforms.json) or colmap (sparse/0 model)",
-    "llff_holdout": "LLFF, and captures without a split: every n-th image is held out for "
-                    "val/test",
-    "layout": "captures: auto, forward-facing (LLFF recentring + NDC) or object (centred on "
-              "what the cameras look at, bounds from the data)",
-}
+from msnerf_jax.core.config import help_of
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: Any,
-                         skip: Iterable[str] = (), title: str = "more settings",
-                         helps: Dict[str, str] = None) -> None:
-  """One option --field-name per field of the dataclass `cls` not in `skip` (those have
-  hand-written options), in a group of its own. Each defaults to None, meaning "as
-  `defaults` says" (shown in the help); booleans get --x / --no-x. `helps` replaces HELP's
-  text for some fields (a name that means something else in this config)."""
-  helps = {**HELP, **(helps or {})}
-  group = parser.add_argument_group(title)
-  for field in dataclasses.fields(cls):
-    if field.name in skip or dataclasses.is_dataclass(field.default_factory):
-      continue
+                         names: Optional[Sequence[str]] = None, skip: Iterable[str] = (),
+                         title: Optional[str] = None) -> None:
+  """One option --field-name per field of the dataclass `cls`: the fields `names`, in that
+  order, or else every field not in `skip` (nested configs aside). The help is the field's
+  (config.help_of). Each defaults to None, meaning "as `defaults` says" (shown in the help;
+  `defaults` None: "the preset's"), so a config is `override(defaults, **config_overrides(
+  args, cls))` and --config RUN knows what the command line set; booleans get --x / --no-x.
+  `title`: an argument group of its own (None: the parser's own options)."""
+  group = parser if title is None else parser.add_argument_group(title)
+  fields = {f.name: f for f in dataclasses.fields(cls)}
+  chosen = ([fields[n] for n in names] if names is not None else
+            [f for f in fields.values() if f.name not in skip
+             and not dataclasses.is_dataclass(f.default_factory)])
+  for field in chosen:
     value = getattr(defaults, field.name) if defaults is not None else field.default
     shown = "the preset's" if defaults is None else value
     kwargs: Dict[str, Any] = ({"action": argparse.BooleanOptionalAction}
                               if isinstance(field.default, bool) else
-                              {"type": type(field.default), "metavar": type(field.default).__name__.upper()})
+                              {"type": type(field.default),
+                               "metavar": type(field.default).__name__.upper()})
     group.add_argument("--" + field.name.replace("_", "-"), default=None,
-                       help=f"{helps.get(field.name, field.name.replace('_', ' '))} "
-                            f"(default: {shown})", **kwargs)
+                       help=f"{help_of(field)} (default: {shown})", **kwargs)
 
 
 def _parsers(parser: argparse.ArgumentParser):

@@ -10,25 +10,8 @@ from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
 from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.FeatureConfig()
-_HELPS = {
-    "scene_box": "half side of the box the field's hash grid covers (0 = the NeRF's)",
-    "dim": "channels of the rendered feature (lifted to 512 after compositing)",
-    "width": "width of a hidden layer (GELU) before the feature (0 = none: linear)",
-    "loss": "mse or l1 between the cells' features and the encoder's",
-    "hash_levels": "feature field: hash grid resolution levels",
-    "hash_features": "feature field: features per level",
-    "hash_table_size": "feature field: table entries per level (a power of two)",
-    "hash_min_res": "feature field: coarsest grid resolution",
-    "hash_max_res": "feature field: finest grid resolution",
-    "top_k": "hierarchical NeRFs: the heaviest fine samples of each ray that get a feature",
-    "rays_per_cell": "jittered rays averaged into one relu4_1 cell per step",
-    "decode_weight": "weight of the decodability loss: the frozen decoder paints patches of "
-                     "rendered cells, MSE to --decode-target (0 = off)",
-    "decode_target": "decodability loss: photo (the view's pixels) or encoder (the decoder's "
-                     "picture of the view's own relu4_1 cells, per-frame AdaIN at alpha 0)",
-    "decode_patches": "decodability loss: patches per step",
-    "decode_cells": "decodability loss: a patch's side in relu4_1 cells (>= 3)",
-}
+# The options `msnerf features train --help` lists first (--lr sets lr_init).
+_MAIN = ("stylize_scale", "steps", "batch_cells")
 
 
 def register(commands, formatter):
@@ -55,24 +38,17 @@ def register(commands, formatter):
   p.add_argument("--decoder", required=True,
                  help="AdaIN run folder (`msnerf adain train`) that will paint the features")
   p.add_argument("--out", required=True, help="run folder")
-  p.add_argument("--stylize-scale", type=int, default=_DEFAULTS.stylize_scale, metavar="N",
-                 help="encode the views enlarged N times, as `msnerf stylize-scene "
-                      "--stylize-scale N` does: strokes N x finer relative to the scene")
-  p.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="training steps")
-  p.add_argument("--batch-cells", type=int, default=_DEFAULTS.batch_cells,
-                 help="relu4_1 cells per step")
-  p.add_argument("--lr", type=float, default=_DEFAULTS.lr_init,
-                 help=f"initial learning rate (decays exponentially to "
-                      f"{_DEFAULTS.lr_final:g} at step {_DEFAULTS.lr_decay_steps})")
-  p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
-                 help="steps between checkpoints")
-  p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
+  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS, names=_MAIN)
+  p.add_argument("--lr", type=float, default=None,
+                 help=f"initial learning rate, decaying exponentially to --lr-final at "
+                      f"--lr-decay-steps (default: {_DEFAULTS.lr_init})")
+  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS,
+                       names=("checkpoint_every", "seed"))
   add_parallel_arguments(p)
   add_config_option(p, "features")
   add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS,
-                       title="every other feature-field setting", helps=_HELPS, skip=(
-                           "stylize_scale", "steps", "batch_cells", "lr_init",
-                           "checkpoint_every", "seed"))
+                       title="every other feature-field setting",
+                       skip=_MAIN + ("lr_init", "checkpoint_every", "seed"))
   p.set_defaults(func=cmd_train)
 
 
@@ -81,10 +57,8 @@ def cmd_train(args):
   shows = start_processes(args)
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  built = config_lib.override(config_lib.FeatureConfig(
-      stylize_scale=args.stylize_scale, steps=args.steps, batch_cells=args.batch_cells,
-      lr_init=args.lr, checkpoint_every=args.checkpoint_every, seed=args.seed),
-      **config_overrides(args, config_lib.FeatureConfig))
+  built = config_lib.override(config_lib.FeatureConfig(), lr_init=args.lr,
+                              **config_overrides(args, config_lib.FeatureConfig))
   config = start_config(args, "features", built, {"lr_init": "lr"})
   summary = features.train(config, args.nerf, args.decoder, args.out, n_devices=args.devices,
                            parallel=args.parallel, progress=shows)

@@ -5,7 +5,6 @@ import os
 import time
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.cli.common import (add_parallel_arguments, load_run_and_scene, print_summary,
                                    print_training_summary, start_processes)
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
@@ -13,6 +12,9 @@ from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
 from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.MultistyleConfig()
+# The options `msnerf multistyle train --help` lists first (--lr sets lr_init and lr_final).
+_MAIN = ("density_aware", "steps", "batch_rays", "rgb_extra_layers", "density_extra_layers",
+         "style_weight", "style_patch", "style_patches", "checkpoint_every", "seed")
 
 
 def register(commands, formatter):
@@ -75,35 +77,15 @@ def _register_multistyle(commands, formatter):
   p.add_argument("--nerf", required=True, help="NeRF run folder (`msnerf nerf train`)")
   p.add_argument("--stylized", required=True, help="dataset folder (`msnerf stylize-scene`)")
   p.add_argument("--out", required=True, help="run folder")
-  p.add_argument("--density-aware", action="store_true",
-                 help="also learn a style-conditioned density head (per-style geometry)")
-  p.add_argument("--steps", type=int, default=_DEFAULTS.steps, help="training steps")
-  p.add_argument("--batch-rays", type=int, default=_DEFAULTS.batch_rays,
-                 help="pixels per step (each supervised in every style)")
-  p.add_argument("--lr", type=float, default=_DEFAULTS.lr_init,
-                 help=f"initial learning rate (decays exponentially to lr/10 at step "
-                      f"{_DEFAULTS.lr_decay_steps})")
-  p.add_argument("--rgb-extra-layers", type=int, default=_DEFAULTS.rgb_extra_layers,
-                 metavar="N", help="extra W/2-wide layers in the new colour MLP")
-  p.add_argument("--density-extra-layers", type=int, default=_DEFAULTS.density_extra_layers,
-                 metavar="N", help="extra W-wide layers in the new density MLP (--density-aware)")
-  p.add_argument("--style-weight", type=float, default=_DEFAULTS.style_weight, metavar="W",
-                 help="also match the VGG feature statistics of whole rendered patches to the "
-                      "stylized views' (AdaIN style loss; beyond the paper's method; 0 = off)")
-  p.add_argument("--style-patch", type=int, default=_DEFAULTS.style_patch, metavar="S",
-                 help="side of each patch of the style loss, in pixels")
-  p.add_argument("--style-patches", type=int, default=_DEFAULTS.style_patches, metavar="N",
-                 help="patches per step of the style loss")
-  p.add_argument("--checkpoint-every", type=int, default=_DEFAULTS.checkpoint_every,
-                 help="steps between checkpoints")
-  p.add_argument("--seed", type=int, default=_DEFAULTS.seed, help="random seed")
+  add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS, names=_MAIN[:3])
+  p.add_argument("--lr", type=float, default=None,
+                 help=f"initial learning rate, decaying exponentially to lr/10 at step "
+                      f"{_DEFAULTS.lr_decay_steps} (default: {_DEFAULTS.lr_init})")
+  add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS, names=_MAIN[3:])
   add_parallel_arguments(p)
   add_config_option(p, "multistyle")
   add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS,
-                       title="every other multi-style setting", skip=(
-                           "density_aware", "steps", "batch_rays", "lr_init", "rgb_extra_layers",
-                           "density_extra_layers", "style_weight", "style_patch",
-                           "style_patches", "checkpoint_every", "seed"))
+                       title="every other multi-style setting", skip=_MAIN + ("lr_init",))
   p.set_defaults(func=cmd_train)
 
   p = verbs.add_parser("eval", formatter_class=formatter,
@@ -117,6 +99,7 @@ def _register_multistyle(commands, formatter):
 
 
 def cmd_stylize_scene(args):
+  from msnerf_jax.kinds import stylized_scenes  # pylint: disable=g-import-not-at-top
   t0 = time.time()
   if args.from_features is not None:
     given = [f"--{name.replace('_', '-')}" for name, default in (
@@ -152,13 +135,9 @@ def cmd_train(args):
   shows = start_processes(args)
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")
-  built = config_lib.override(config_lib.MultistyleConfig(
-      density_aware=args.density_aware, steps=args.steps, batch_rays=args.batch_rays,
-      lr_init=args.lr, lr_final=args.lr / 10, checkpoint_every=args.checkpoint_every,
-      seed=args.seed, rgb_extra_layers=args.rgb_extra_layers,
-      density_extra_layers=args.density_extra_layers, style_weight=args.style_weight,
-      style_patch=args.style_patch, style_patches=args.style_patches),
-      **config_overrides(args, config_lib.MultistyleConfig))
+  lr = {} if args.lr is None else {"lr_init": args.lr, "lr_final": args.lr / 10}
+  built = config_lib.override(config_lib.MultistyleConfig(**lr),
+                              **config_overrides(args, config_lib.MultistyleConfig))
   # --lr also sets lr_final (lr / 10) unless --lr-final is given.
   config = start_config(args, "multistyle", built,
                         {"lr_init": "lr", "lr_final": "lr_final" if args.lr_final else "lr"})

