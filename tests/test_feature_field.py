@@ -25,7 +25,7 @@ from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.style.features import (cell_grid, pooled_stats, style_vector_of_stats,
                                      stylize_features)
-from msnerf_jax.train import features
+from msnerf_jax.train import feature_targets, features
 from msnerf_jax.train import nerf
 
 from conftest import fake_decoder, write_blender_scene
@@ -141,7 +141,7 @@ def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(feature_world):
 
 def test_targets_are_cached_and_the_content_stats_pooled_over_the_fields_renders(feature_world):
   run_dir = feature_world["run"]
-  targets = np.load(os.path.join(run_dir, features.TARGETS))
+  targets = np.load(os.path.join(run_dir, feature_targets.TARGETS))
   assert targets.shape == (4, 4, 4, 512) and targets.dtype == np.float16  # 16 px x 2 / 8
   encoded = np.load(os.path.join(run_dir, feature_kind.CONTENT_STATS))
   want = pooled_stats(list(targets.astype(np.float32)))
@@ -170,7 +170,7 @@ def test_training_lowers_the_loss_on_a_fixed_batch(feature_world, sampler):
     source = msnerf_jax.load_run(feature_world["nerf"])
     nerf_config, nerf_params = source.config, source.params
   config = dataclasses.replace(TINY_FEATURES, nerf=nerf_config, scene_box=1.5, batch_cells=16)
-  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], features.TARGETS)))
+  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], feature_targets.TARGETS)))
   args = (jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, False,
           (scene.height, scene.width, scene.focal), scene.near, scene.far)
   fixed = features.sample_batch(jax.random.PRNGKey(123), targets, *args)
@@ -194,7 +194,7 @@ def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alon
   config = dataclasses.replace(TINY_FEATURES, nerf=source.config, scene_box=1.5,
                                decode_weight=1.0, decode_target=target, decode_patches=2,
                                decode_cells=3)
-  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], features.TARGETS)))
+  targets = jnp.asarray(np.load(os.path.join(feature_world["run"], feature_targets.TARGETS)))
   views = scene.images[scene.split("train")]
   big = np.stack([stylize.enlarged(v, 2) for v in views])  # [4, 32, 32, 3]
   args = (jnp.asarray(scene.c2w[:4]), jnp.asarray(scene.K), config, False,
@@ -407,7 +407,7 @@ def test_two_devices_give_the_same_feature_steps_as_one(feature_world, decode_we
   code = TWO_DEVICES.format(tests=tests, scene=feature_world["scene_dir"],
                             nerf=feature_world["nerf"], decoder=feature_world["decoder"],
                             decode_weight=decode_weight,
-                            targets=os.path.join(feature_world["run"], features.TARGETS))
+                            targets=os.path.join(feature_world["run"], feature_targets.TARGETS))
   result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=600)
   assert result.returncode == 0, result.stdout + result.stderr[-3000:]

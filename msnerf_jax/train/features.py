@@ -15,7 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.core import distributed
 from msnerf_jax.nerf import rays as rays_lib
@@ -23,85 +22,23 @@ from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.core import run_lock
 from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.style import transfer as stylize_lib
-from msnerf_jax.style.adain import encode
 from msnerf_jax.core.config import FeatureConfig
-from msnerf_jax.data.images import read_npy
-from msnerf_jax.data.scene import Scene
 from msnerf_jax.core.errors import UserError
-from msnerf_jax.style.features import CELL, painted_size, pooled_stats
-from msnerf_jax.core.files import write_npy
+from msnerf_jax.style.features import CELL, painted_size
 from msnerf_jax.models import decoder as decoder_lib
-from msnerf_jax.models import vgg
 from msnerf_jax.models.feature_field import FeatureFieldFn, init_feature_params
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.core.parallel import DataParallel, data_parallel
-from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
+from msnerf_jax.train.feature_targets import (load_targets, prepare_targets,
+                                              write_rendered_stats)
 
 KIND = "features"
 FROZEN = "nerf"  # params {"nerf": the NeRF run's params, "features": {"field", "lift"}}.
 TRAINED = "features"
-TARGETS = "targets.npy"  # [N, h, w, 512] float16: relu4_1 of the training views.
-
-
-# ----------------------------------------------------------------------------- targets
-
-
-def view_targets(encoder, views, scale: int, progress: bool = False) -> np.ndarray:
-  """relu4_1 of each view enlarged (stylize.enlarged): [N, ceil(sH/8), ceil(sW/8), 512]
-  float16."""
-  out = []
-  for view in progress_bar(views, desc="feature targets", disable=not progress, leave=False):
-    big = stylize_lib.enlarged(view, scale)
-    out.append(np.asarray(encode(encoder, jnp.asarray(big[None]))["relu4_1"][0], np.float16))
-  return np.stack(out)
-
-
-def prepare_targets(run_dir: str, scene: Scene, config: FeatureConfig,
-                    progress: bool = False) -> None:
-  """Writes the run's target cache and the scene's content statistics (pooled over every
-  cell of every training view) unless they are there already."""
-  path = os.path.join(run_dir, TARGETS)
-  if os.path.exists(path) and os.path.exists(os.path.join(run_dir, feature_kind.CONTENT_STATS)):
-    return
-  views = scene.images[scene.split("train")]
-  targets = view_targets(vgg.load_vgg_params(), views, config.stylize_scale, progress)
-  write_npy(os.path.join(run_dir, feature_kind.CONTENT_STATS), np.stack(pooled_stats(targets)))
-  write_npy(path, targets)
-
-
-STATS_VIEWS = 16  # training views (evenly spaced) the rendered statistics are pooled over.
-
-
-def rendered_stats(params, config: FeatureConfig, scene: Scene, progress: bool = False
-                   ) -> Tuple[np.ndarray, np.ndarray]:
-  """(mean [512], std [512]) of the field's rendered relu4_1 cells (views.render_feature_map)
-  over up to STATS_VIEWS evenly spaced training views: the statistics stylizing normalises
-  by (feature_kind.content_stats)."""
-  from msnerf_jax.kinds import views  # pylint: disable=g-import-not-at-top
-  train = scene.split("train")
-  pick = train[np.linspace(0, len(train) - 1, min(len(train), STATS_VIEWS)).round().astype(int)]
-  return pooled_stats([views.render_feature_map(scene, params, config, int(i))["features"]
-                       for i in progress_bar(pick, desc="rendered statistics",
-                                             disable=not progress, leave=False)])
-
-
-def write_rendered_stats(run_dir: str, scene: Scene, progress: bool = False) -> str:
-  """Writes feature_kind.RENDERED_STATS of the run's latest step unless it is there; returns it."""
-  run = runs_lib.load_run(run_dir, KIND)
-  path = os.path.join(run_dir, feature_kind.RENDERED_STATS.format(step=run.step))
-  if not os.path.exists(path):
-    write_npy(path, np.stack(rendered_stats(run.params, run.config, scene, progress)))
-  return path
-
-
-def load_targets(run_dir: str, n_views: int, shape: Tuple[int, int]) -> np.ndarray:
-  """The target cache [N, h, w, 512] float16 (prepare_targets), checked."""
-  return read_npy(os.path.join(run_dir, TARGETS),
-                  (n_views, *shape, vgg.LAYER_CHANNELS["relu4_1"])).astype(np.float16)
 
 
 # ----------------------------------------------------------------------------- state
