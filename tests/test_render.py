@@ -109,3 +109,15 @@ def test_render_rays_styles_is_the_conditioned_render():
   b = render.render_rays(field, params, rays, CONFIG, None, True, conditioning=styles)
   for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
     np.testing.assert_array_equal(x, y)
+
+
+def test_a_runs_own_config_renders_like_its_nerf_config():
+  """render_rays_styles with a MultistyleConfig (what `load_run` gives a researcher) samples
+  by its `.nerf`, as with the NerfConfig itself."""
+  from msnerf_jax.core.config import MultistyleConfig  # pylint: disable=g-import-not-at-top
+  field, params, styles = style_setup(False)
+  rays = flat(image_rays(), 20)
+  a = render.render_rays_styles(field, params, rays, styles, MultistyleConfig(nerf=CONFIG))
+  b = render.render_rays_styles(field, params, rays, styles, CONFIG)
+  for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+    np.testing.assert_array_equal(x, y)

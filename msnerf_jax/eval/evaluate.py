@@ -202,10 +202,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   vectors = [style_vectors(r) for r in runs]
   names = _evaluated_styles(run_dirs, vectors, sources, styles)
   singles = _single_style_runs(single_style_runs, names)
-  decoder_dir = decoder_dir or manifest.get("decoder")
-  if not decoder_dir:
-    raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
-  decoder = stylized_scenes.load_decoder(decoder_dir)
+  decoder = _decoder_of(run, manifest, decoder_dir)
   nerf_run = load_run(run.record["nerf_run"], "nerf")
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
@@ -216,11 +213,7 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
   base = [{**render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk), "pose": c2w}
           for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
-  # All styles in one sweep per view, for each multi-style run.
-  stack = [np.stack([v[n] for n in names]) for v in vectors]
-  swept = [[render_styles(scene, r.params, r.config, c2w, s, chunk)
-            for c2w in progress_bar(poses, desc=f"{m} path", disable=not progress, leave=False)]
-           for r, s, m in zip(runs, stack, methods)]
+  swept = _multistyle_sweeps(runs, vectors, names, methods, scene, poses, chunk, progress)
   pictures = [images_lib.read_image(sources[n]["source"], max_side=1024) for n in names]
   # Every style from one feature render per view, for each feature run.
   painted = [feature_field_frames(field, scene, base, run.record["nerf_run"], encoder, pictures,
@@ -251,6 +244,22 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   files = write_tables(rows, out_dir)
   files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure_rows))
   return {"rows": rows, "files": files, "seconds": time.time() - t0}
+
+
+def _decoder_of(run, manifest, decoder_dir):
+  """The AdaIN decoder of the per-frame baseline: `decoder_dir`, or the stylized dataset's."""
+  decoder_dir = decoder_dir or manifest.get("decoder")
+  if not decoder_dir:
+    raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
+  return stylized_scenes.load_decoder(decoder_dir)
+
+
+def _multistyle_sweeps(runs, vectors, names, methods, scene, poses, chunk, progress):
+  """Per multi-style run, its render of every path camera in all `names` styles at once."""
+  stack = [np.stack([v[n] for n in names]) for v in vectors]
+  return [[render_styles(scene, r.params, r.config, c2w, s, chunk)
+           for c2w in progress_bar(poses, desc=f"{m} path", disable=not progress, leave=False)]
+          for r, s, m in zip(runs, stack, methods)]
 
 
 def _evaluated_styles(run_dirs, vectors, sources, styles) -> List[str]:

@@ -136,6 +136,12 @@ def _jitted_init(upsample: str, feat_size: int):
   return jax.jit(lambda key: Decoder(upsample=upsample).init(key, jnp.zeros((1, feat_size, feat_size, 512))))
 
 
+def paint(decoder_params, features: jnp.ndarray, upsample: str = "nearest") -> jnp.ndarray:
+  """The decoder's picture of relu4_1 features [B, h, w, 512]: [B, 8h, 8w, 3] in [0, 1] (the
+  one decode-and-clip every stylization path uses)."""
+  return jnp.clip(Decoder(upsample).apply(decoder_params, features), 0.0, 1.0)
+
+
 def init_decoder(key: jax.Array, upsample: str = "nearest", feat_size: int = 8):
   """Fresh decoder params ({"params": ...}) from an explicit PRNG key."""
   return _jitted_init(upsample, feat_size)(key)

@@ -126,7 +126,7 @@ def _decode(decoder_params, features, accumulation, content_stats, style_means, 
   """[h, w, C] features -> [K, 8h, 8w, 3] in [0, 1], one image per style (K stats)."""
   styled = jax.vmap(lambda m, s: stylize_features(features, accumulation, content_stats,
                                                   (m, s), alpha))(style_means, style_stds)
-  return jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, styled), 0.0, 1.0)
+  return decoder_lib.paint(decoder_params, styled, upsample)
 
 
 decode_styles_jit = jax.jit(_decode, static_argnames=("upsample",))

@@ -76,7 +76,7 @@ def decode_with_stats(decoder_params: Any, encoder_params: Any, content: jnp.nda
   """
   feats = adain_lib.encode(encoder_params, content)["relu4_1"]
   target = adain_lib.adain_from_stats(feats, mean, std, alpha, content_stats)
-  return jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, target), 0.0, 1.0)
+  return decoder_lib.paint(decoder_params, target, upsample)
 
 
 def stylize_arrays(decoder_params: Any, encoder_params: Any, content: jnp.ndarray,

@@ -73,8 +73,7 @@ def make_stylize_fn(upsample: str):
   def fn(decoder_params, encoder_params, content, style):
     feats = adain_lib.encode(encoder_params, content)["relu4_1"]
     style_feats = adain_lib.encode(encoder_params, style)["relu4_1"]
-    out = decoder_lib.Decoder(upsample).apply(decoder_params, adain_lib.adain(feats, style_feats))
-    return jnp.clip(out, 0.0, 1.0)
+    return decoder_lib.paint(decoder_params, adain_lib.adain(feats, style_feats), upsample)
 
   return jax.jit(fn)
 
@@ -86,7 +85,7 @@ def make_feature_stylize_fn(upsample: str):
 
   def fn(decoder_params, encoder_params, features, stats, style):
     mean, std = adain_lib.channel_stats(adain_lib.encode(encoder_params, style)["relu4_1"])
-    decode = lambda t: jnp.clip(decoder_lib.Decoder(upsample).apply(decoder_params, t), 0.0, 1.0)
+    decode = lambda t: decoder_lib.paint(decoder_params, t, upsample)
     own = [jnp.broadcast_to(x, mean.shape) for x in stats]  # AdaIN towards the scene: identity.
     return (decode(adain_targets(encoder_params, None, features, *own)),
             decode(adain_targets(encoder_params, None, features, mean, std)))
