@@ -4,6 +4,7 @@ import argparse
 import dataclasses
 from typing import Any, Dict, Iterable, Optional, Sequence, Set, Type
 
+from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.config import help_of
 
 
@@ -63,7 +64,6 @@ def start_config(args: argparse.Namespace, kind: str, built: Any,
   field to the option dest that sets it (lr_init -> lr)."""
   if getattr(args, "config", None) is None:
     return built
-  from msnerf_jax.core import config as config_lib  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds.runs import load_config  # pylint: disable=g-import-not-at-top
   aliases = aliases or {}
   given = getattr(args, "given", set())

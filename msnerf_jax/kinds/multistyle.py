@@ -40,9 +40,10 @@ KIND = RunKind(
     config_class=MultistyleConfig,
     train_command="msnerf multistyle train",
     title="multi-style",
-    params_layout=('the NeRF run\'s tree, each level {"trunk": the frozen NeRF trunk, "style": '
-                   'the style MLPs, "rgb": the new colour head[, "density": the new density '
-                   'head (density-aware)]}'),
+    params_layout=('{"coarse", "fine"} (the NeRF run\'s levels; {"fine", "occupancy"} with the '
+                   'grid sampler), each {"trunk": the NeRF run\'s trunk, frozen, "style_rgb", '
+                   '"rgb_hidden", "rgb_out"[, "style_density", "density_hidden", '
+                   '"density_out" (density-aware)][, "rgb_extra_i", "density_extra_i"]}'),
     init_params=init_multistyle_params,
     nerf_config=lambda config: config.nerf,
     field=MultistyleField,

@@ -24,6 +24,13 @@ def style_rendering(run, scene, chunk: Optional[int] = None, grids: Optional[int
   if kind.style_renderer is None:
     raise UserError(f"{run.run_dir}: a {run.kind!r} run has no styles")
   table, size = kind.style_table(run, scene)
-  decoder = (load_decoder(decoder_dir or run.record["decoder"]) if kind.paints_any_style
-             else None)
-  return table, size, kind.style_renderer(run, scene, chunk, grids, decoder)
+  return table, size, kind.style_renderer(run, scene, chunk, grids,
+                                          painting_decoder(run, decoder_dir))
+
+
+def painting_decoder(run, decoder_dir: Optional[str] = None):
+  """The loaded AdaIN decoder that paints a run of a kind which paints any style at render
+  time (`decoder_dir`, default the one it was trained with); None for the other kinds."""
+  if not get_kind(run.kind).paints_any_style:
+    return None
+  return load_decoder(decoder_dir or run.record["decoder"])

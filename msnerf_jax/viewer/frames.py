@@ -28,7 +28,7 @@ from msnerf_jax.data.stylized import ORIGINAL, style_name
 from msnerf_jax.style.vectors import style_vector_of
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.kinds.registry import get_kind
-from msnerf_jax.kinds.renderers import style_rendering
+from msnerf_jax.kinds.renderers import painting_decoder
 from msnerf_jax.kinds.runs import Run
 from msnerf_jax.viewer import camera as camera_lib
 
@@ -88,17 +88,18 @@ class Frames:
       raise UserError(f"{run.run_dir}: a {run.kind!r} run has no scene to view")
     self.config = kind.nerf_config(run.config)
     self.styles: Dict[str, np.ndarray] = {}
+    if kind.style_table is not None:
+      # A painting kind's "original" is the scene's own statistics: the strength slider
+      # blends towards it.
+      self.styles, self._painted_size = kind.style_table(run, scene)
     if kind.paints_any_style:
-      # Its "original" is the scene's own statistics: the strength slider blends towards it.
       # Low frames, drawn while the camera moves, are painted on one cell grid.
-      self._paint = {level: style_rendering(run, scene, None, 1 if level == "low" else grids,
-                                            decoder_dir) for level in LEVELS}
-      self.styles, self._painted_size = self._paint["full"][:2]
-      self._paint = {level: paint[2] for level, paint in self._paint.items()}
+      decoder = painting_decoder(run, decoder_dir)
+      self._paint = {level: kind.style_renderer(run, scene, None,
+                                                1 if level == "low" else grids, decoder)
+                     for level in LEVELS}
     else:
       self.field = kind.field(run.config)
-      if kind.style_table is not None:
-        self.styles, self._painted_size = kind.style_table(run, scene)
     if style_paths and not self.styles:
       raise UserError(f"--styles: {run.run_dir} is a NeRF run, it has no styles")
     # Given style images first: the page opens in the first one (named for its file, apart

@@ -12,7 +12,8 @@ from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_
                                           FeatureConfig, MultistyleConfig)
 
 __all__ = ["NAMED_FIRST", "bad_setting", "check_at_least", "check_hash_settings",
-           "check_positive", "diff", "from_dict", "help_of", "override", "setting", "to_dict", "DEFAULT_PRESET", "PRESETS",
+           "check_positive", "diff", "from_dict", "help_of", "override", "setting", "to_dict",
+           "DEFAULT_PRESET", "PRESETS",
            "SAMPLERS", "TRUNKS", "DataConfig", "NerfConfig", "nerf_preset", "DECODE_TARGETS",
            "FEATURE_LOSSES", "SHIFT_MIN_SIZE", "SHIFT_SOURCES", "UPSAMPLE_MODES", "AdainConfig",
            "FeatureConfig", "MultistyleConfig"]
