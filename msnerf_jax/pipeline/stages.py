@@ -242,4 +242,3 @@ STAGES: Sequence[Stage] = (
           lambda c: renders.run_renders(c.out, c.styles, c.settings, c.progress),
           _render_outputs),
 )
-STAGE_NAMES = tuple(stage.name for stage in STAGES)
