@@ -20,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
   from msnerf_jax.cli import features as features_cli
   from msnerf_jax.cli import multistyle as multistyle_cli
   from msnerf_jax.cli import nerf as nerf_cli
+  from msnerf_jax.cli import paint as paint_cli
   from msnerf_jax.cli import pipeline as pipeline_cli
   from msnerf_jax.cli import render as render_cli
   from msnerf_jax.cli import view as view_cli
@@ -34,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
   evaluate_cli.register(commands, _Formatter)
   render_cli.register(commands, _Formatter)
   features_cli.register(commands, _Formatter)
+  paint_cli.register(commands, _Formatter)
   pipeline_cli.register(commands, _Formatter)
   demo_cli.register(commands, _Formatter)
   view_cli.register(commands, _Formatter)

@@ -83,6 +83,24 @@ def read_image(path: str,
   return _decode(path, path, background, max_side, keep_alpha, reduce)
 
 
+STYLE_MIN_SIDE = 16  # VGG's relu4_1 needs 2 x 2 cells.
+
+
+def read_style_image(path: str, max_side: Optional[int] = 1024) -> np.ndarray:
+  """A style picture as read_image reads it ([h, w, 3] float32), longer side shrunk to
+  `max_side`; UserError for a file read_image refuses, an animated image (which frame would
+  be the style?) or one under STYLE_MIN_SIDE pixels a side."""
+  image = read_image(path, max_side=max_side)
+  with Image.open(path) as opened:
+    if getattr(opened, "n_frames", 1) > 1:
+      raise UserError(f"{path}: an animated image ({opened.n_frames} frames); give one still "
+                      "picture per style")
+  if min(image.shape[:2]) < STYLE_MIN_SIDE:
+    raise UserError(f"{path}: style image is {image.shape[1]}x{image.shape[0]}, need at least "
+                    f"{STYLE_MIN_SIDE}x{STYLE_MIN_SIDE}")
+  return image
+
+
 def decode_image(data: bytes, name: str, background: Optional[float] = 1.0,
                  max_side: Optional[int] = None) -> np.ndarray:
   """An image file's bytes (e.g. an upload) as float32 RGB [h, w, 3] in [0, 1], as

@@ -4,11 +4,11 @@ line here. Nothing else in the package tests a run's kind by name."""
 from typing import Dict
 
 from msnerf_jax.core.errors import UserError
-from msnerf_jax.kinds import adain, features, multistyle, nerf
+from msnerf_jax.kinds import adain, features, multistyle, nerf, painted
 from msnerf_jax.kinds.base import RunKind
 
 KINDS: Dict[str, RunKind] = {k.name: k for k in (
-    nerf.KIND, adain.KIND, multistyle.KIND, features.KIND)}
+    nerf.KIND, adain.KIND, multistyle.KIND, features.KIND, painted.KIND)}
 
 
 def get_kind(name: str) -> RunKind:

@@ -20,19 +20,11 @@ from msnerf_jax.core.progress import progress_bar
 Stats = Tuple[Any, Any]
 
 
-def match_color(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5) -> jnp.ndarray:
-  """Colour-preserving transfer (Gatys et al., used by the AdaIN paper sec. 7.2).
-
-  An affine map of `source`'s RGB values so that their mean and covariance equal those of
-  `target`: x' = C_t^1/2 C_s^-1/2 (x - mu_s) + mu_t.
-
-  Args:
-    source: [h, w, 3] (the style image), target: [h', w', 3] (the content image).
-  Returns:
-    [h, w, 3], clipped to [0, 1].
-  """
-  chex.assert_rank([source, target], 3)
-
+def colour_map(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5
+               ) -> Tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+  """The affine map of RGB values that gives the pixels of `source` [..., 3] (all of them
+  together) the mean and covariance of `target`'s [..., 3]: x' = T (x - mu_s) + mu_t with
+  T = C_t^1/2 C_s^-1/2. Returns (T [3, 3], mu_s [3], mu_t [3])."""
   def stats(x):
     flat = x.reshape(-1, 3)
     mu = jnp.mean(flat, axis=0)
@@ -47,9 +39,29 @@ def match_color(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5) -> 
 
   mu_s, cov_s = stats(source)
   mu_t, cov_t = stats(target)
-  transform = sqrtm(cov_t, 0.5) @ sqrtm(cov_s, -0.5)
-  out = (source.reshape(-1, 3) - mu_s) @ transform.T + mu_t
-  return jnp.clip(out.reshape(source.shape), 0.0, 1.0)
+  return sqrtm(cov_t, 0.5) @ sqrtm(cov_s, -0.5), mu_s, mu_t
+
+
+def apply_colour_map(images: jnp.ndarray, transform: jnp.ndarray, mu_s: jnp.ndarray,
+                     mu_t: jnp.ndarray) -> jnp.ndarray:
+  """colour_map's map applied to images [..., 3], clipped to [0, 1]."""
+  out = (images.reshape(-1, 3) - mu_s) @ transform.T + mu_t
+  return jnp.clip(out.reshape(images.shape), 0.0, 1.0)
+
+
+def match_color(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5) -> jnp.ndarray:
+  """Colour-preserving transfer (Gatys et al., used by the AdaIN paper sec. 7.2).
+
+  An affine map of `source`'s RGB values so that their mean and covariance equal those of
+  `target` (colour_map).
+
+  Args:
+    source: [h, w, 3] (the style image), target: [h', w', 3] (the content image).
+  Returns:
+    [h, w, 3], clipped to [0, 1].
+  """
+  chex.assert_rank([source, target], 3)
+  return apply_colour_map(source, *colour_map(source, target, eps))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,6 +7,7 @@ from msnerf_jax.core.config.base import (NAMED_FIRST, bad_setting, check_at_leas
                                          help_of, override, setting, to_dict)
 from msnerf_jax.core.config.nerf import (DEFAULT_PRESET, PRESETS, SAMPLERS, TRUNKS, DataConfig,
                                          NerfConfig, nerf_preset)
+from msnerf_jax.core.config.paint import PAINT_LOSSES, PaintConfig
 from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_MIN_SIZE,
                                           SHIFT_SOURCES, UPSAMPLE_MODES, AdainConfig,
                                           FeatureConfig, MultistyleConfig)
@@ -16,4 +17,4 @@ __all__ = ["NAMED_FIRST", "bad_setting", "check_at_least", "check_hash_settings"
            "DEFAULT_PRESET", "PRESETS",
            "SAMPLERS", "TRUNKS", "DataConfig", "NerfConfig", "nerf_preset", "DECODE_TARGETS",
            "FEATURE_LOSSES", "SHIFT_MIN_SIZE", "SHIFT_SOURCES", "UPSAMPLE_MODES", "AdainConfig",
-           "FeatureConfig", "MultistyleConfig"]
+           "FeatureConfig", "MultistyleConfig", "PAINT_LOSSES", "PaintConfig"]

@@ -57,6 +57,14 @@ class Sampler:
     """A feature field composited with the frozen NeRF's weights (render_feature_rays)."""
     raise NotImplementedError
 
+  def weighted_samples(self, field, nerf_params, rays, config, top_k: int,
+                       budget: Optional[int] = None) -> Dict[str, Any]:
+    """The frozen NeRF's samples along rays [R] that carry its compositing weight (the
+    `top_k` heaviest a ray, or every sample marched in `budget` slots), no gradient:
+    {"points": [S, 3], "weights": [S], "ray": [S] int32 (R for an empty slot), "complete":
+    [R] bool}. What feature_rays composites and painted fields cache."""
+    raise NotImplementedError
+
   def piece_budget(self, host_state, config, piece) -> Optional[int]:
     """The static sample budget of a feature-rendering call on `piece` (None: unbounded)."""
     del host_state, config, piece

@@ -106,16 +106,24 @@ def render_piece(call, params, grid, config, white_background, mesh, piece, styl
           "complete": complete}
 
 
+def weighted_samples(field, nerf_params, rays, config, budget: Optional[int] = None):
+  """The frozen NeRF's samples of rays and their compositing weights, every sample it
+  marched (`budget` slots, as render_rays_grid's): Sampler.weighted_samples' outputs."""
+  out = render_rays_grid(field, jax.lax.stop_gradient(nerf_params), rays, config, {}, False,
+                         budget=budget)
+  return {"points": jax.lax.stop_gradient(out["sample_points"]),
+          "weights": jax.lax.stop_gradient(out["weights"]), "ray": out["sample_ray"],
+          "complete": out["complete"]}
+
+
 def feature_rays(field, feature_fn, params, rays, config, budget: Optional[int] = None):
   """A feature field composited with the NeRF's frozen weights at every sample it marched
   (`budget` slots): render.render_feature_rays' outputs."""
   n = rays["origins"].shape[0]
-  nerf = jax.lax.stop_gradient(params["nerf"])
-  out = render_rays_grid(field, nerf, rays, config, {}, False, budget=budget)
-  weights = jax.lax.stop_gradient(out["weights"])
-  feats = feature_fn(params["features"], jax.lax.stop_gradient(out["sample_points"]))
-  per_ray = lambda x: jax.ops.segment_sum(x, out["sample_ray"], n + 1,
-                                          indices_are_sorted=True)[:n]
+  out = weighted_samples(field, params["nerf"], rays, config, budget)
+  weights = out["weights"]
+  feats = feature_fn(params["features"], out["points"])
+  per_ray = lambda x: jax.ops.segment_sum(x, out["ray"], n + 1, indices_are_sorted=True)[:n]
   return {"features": per_ray(weights[:, None] * feats), "accumulation": per_ray(weights),
           "complete": out["complete"]}
 
@@ -158,6 +166,10 @@ class GridSampler(Sampler):
   def feature_rays(self, field, feature_fn, params, rays, config, top_k, budget=None):
     del top_k
     return feature_rays(field, feature_fn, params, rays, config, budget)
+
+  def weighted_samples(self, field, nerf_params, rays, config, top_k, budget=None):
+    del top_k
+    return weighted_samples(field, nerf_params, rays, config, budget)
 
   def piece_budget(self, host_state, config, piece):
     return sample_budget(np.asarray(_sample_counts(host_state, config, piece, None)).sum(),

@@ -74,18 +74,28 @@ def render_rays(field, params, rays, config, randomness, white_background, backg
   return {"coarse": coarse, "fine": fine}
 
 
+def weighted_samples(field, nerf_params, rays, config, top_k: int):
+  """The `top_k` heaviest fine samples of each ray of the frozen NeRF and their weights,
+  ray-major: Sampler.weighted_samples' outputs (points [R * K, 3])."""
+  n = rays["origins"].shape[0]
+  fine = render_rays(field, jax.lax.stop_gradient(nerf_params), rays, config, {}, False)["fine"]
+  k = min(top_k, fine["weights"].shape[-1])
+  weights, index = jax.lax.top_k(jax.lax.stop_gradient(fine["weights"]), k)
+  points, _ = points_along(rays, jnp.take_along_axis(fine["z_vals"], index, -1))
+  return {"points": jax.lax.stop_gradient(points).reshape(-1, 3),
+          "weights": weights.reshape(-1), "ray": jnp.repeat(jnp.arange(n), k),
+          "complete": jnp.ones((n,), bool)}
+
+
 def feature_rays(field, feature_fn, params, rays, config, top_k: int):
   """A feature field composited with the NeRF's frozen weights at the `top_k` heaviest fine
   samples of each ray: render.render_feature_rays' outputs."""
   n = rays["origins"].shape[0]
-  nerf = jax.lax.stop_gradient(params["nerf"])
-  fine = render_rays(field, nerf, rays, config, {}, False)["fine"]
-  k = min(top_k, fine["weights"].shape[-1])
-  weights, index = jax.lax.top_k(jax.lax.stop_gradient(fine["weights"]), k)
-  points, _ = points_along(rays, jnp.take_along_axis(fine["z_vals"], index, -1))
-  feats = feature_fn(params["features"], jax.lax.stop_gradient(points))  # [R, K, D]
+  out = weighted_samples(field, params["nerf"], rays, config, top_k)
+  weights = out["weights"].reshape(n, -1)
+  feats = feature_fn(params["features"], out["points"].reshape(n, weights.shape[1], 3))
   return {"features": jnp.sum(weights[..., None] * feats, -2),
-          "accumulation": jnp.sum(weights, -1), "complete": jnp.ones((n,), bool)}
+          "accumulation": jnp.sum(weights, -1), "complete": out["complete"]}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +127,10 @@ class HierarchicalSampler(Sampler):
   def feature_rays(self, field, feature_fn, params, rays, config, top_k, budget=None):
     del budget
     return feature_rays(field, feature_fn, params, rays, config, top_k)
+
+  def weighted_samples(self, field, nerf_params, rays, config, top_k, budget=None):
+    del budget
+    return weighted_samples(field, nerf_params, rays, config, top_k)
 
 
 HIERARCHICAL = HierarchicalSampler()

@@ -1,0 +1,68 @@
+"""The painted-run config: colour fields per style on a NeRF run's frozen geometry,
+optimised with a style loss on rendered views (`msnerf paint train`)."""
+
+import dataclasses
+
+from msnerf_jax.core.config.base import bad_setting, check_at_least, check_positive, setting
+from msnerf_jax.core.config.nerf import NerfConfig
+
+PAINT_LOSSES = ("nnfm", "adain")  # PaintConfig.style_loss.
+
+
+@dataclasses.dataclass(frozen=True)
+class PaintConfig:
+  """Painted colour fields: one grid of colours per style over a NeRF run's frozen density
+  (models/painted_field.py), fitted first to the photos colour-transferred to each style,
+  then with a style loss on whole rendered training views (train/paint.py).
+
+  `nerf` is the NeRF run's config; `scene_box` the half side of the box the grids cover (0 =
+  the NeRF's, resolved from the scene when training starts).
+  """
+  nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
+  scene_box: float = setting(0.0, "half side of the box the colour grids cover (0 = the "
+                                  "NeRF's)")
+  resolution: int = setting(128, "colour grid cells a side (each style's grid holds R^3 x 3 "
+                                 "numbers)")
+  style_loss: str = setting("nnfm", "the style term: nnfm (ARF's nearest-neighbour feature "
+                                    "matching on VGG16 relu3_1..3_3) or adain (the AdaIN "
+                                    "statistics of relu1_1..4_1)")
+  style_weight: float = setting(1.0, "weight of the style term")
+  content_weight: float = setting(1e-3, "weight of the content term: MSE of relu3 features to "
+                                        "the colour-transferred photo's")
+  tv_weight: float = setting(0.1, "weight of the rendered image's total variation")
+  colour_transfer: bool = setting(True, "move the photos' colours to each style's mean and "
+                                        "covariance first (the init fit's and the content "
+                                        "term's target)")
+  style_size: int = setting(256, "style images are cover-cropped to this square first")
+  init_steps: int = setting(200, "first steps: MSE to the colour-transferred photos")
+  steps: int = setting(1500, "training steps (the init steps included)")
+  views_per_style: int = setting(1, "training views rendered in each style per step")
+  cache_threshold: float = setting(1e-3, "samples whose weight is at most this are left out "
+                                         "of the cached sample lists")
+  top_k: int = setting(16, "hierarchical NeRFs: the heaviest fine samples of each ray kept")
+  lr_init: float = setting(0.05, "initial learning rate (decays exponentially to --lr-final)")
+  lr_final: float = setting(0.005, "learning rate reached at the last step")
+  seed: int = setting(0, "random seed")
+  checkpoint_every: int = setting(250, "steps between checkpoints")
+  keep_checkpoints: int = setting(2, "checkpoints kept in RUN/checkpoints")
+
+  def validate(self) -> "PaintConfig":
+    """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
+    that cannot work (the styles and the NeRF run are the trainer's checks)."""
+    if self.scene_box < 0:
+      bad_setting(self, "scene_box", "must be >= 0 (0 = the NeRF's)")
+    check_at_least(self, ("resolution",), 2)
+    if self.style_loss not in PAINT_LOSSES:
+      bad_setting(self, "style_loss", f"choose from {', '.join(PAINT_LOSSES)}")
+    for name in ("style_weight", "content_weight", "tv_weight"):
+      if not 0.0 <= getattr(self, name) < float("inf"):
+        bad_setting(self, name, "must be a number >= 0")
+    check_at_least(self, ("style_size",), 16)
+    check_at_least(self, ("init_steps",), 0)
+    check_at_least(self, ("steps", "views_per_style", "top_k", "checkpoint_every",
+                          "keep_checkpoints"))
+    if not 0.0 <= self.cache_threshold < 1.0:
+      bad_setting(self, "cache_threshold", "must be in [0, 1)")
+    check_positive(self, ("lr_init",), "lr")
+    check_positive(self, ("lr_final",))
+    return self

@@ -1,0 +1,99 @@
+"""A frozen NeRF's views as cached sample lists: each pixel's samples (where they are and how
+much they weigh in its composite), computed once, so rendering a colour field over the same
+geometry is a gather and a segment sum with no trunk evaluation (painted colour fields).
+
+A view's cache is a dict of numpy arrays: "points" [P, 3] float32, "weights" [P] float32,
+"pixel" [P] int32 (the pixel index in the view, row-major) and "accumulation" [H * W] (the sum
+of the kept weights of each pixel). Several views pack into arrays with a leading [N] and
+their lists padded with weight 0 (pack_views), which is what jitted code indexes.
+"""
+
+import functools
+from typing import Callable, Dict, List, Optional
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax.nerf.render import flat_rays, padded, sampling_config
+from msnerf_jax.nerf.samplers import sampler_of
+
+CACHE_KEYS = ("points", "weights", "pixel")
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3, 4, 5))
+def _samples_chunk(field, nerf_params, rays, config, top_k, budget):
+  return sampler_of(config).weighted_samples(field, nerf_params, rays, config, top_k, budget)
+
+
+def view_samples(field, nerf_params, rays: Dict[str, jnp.ndarray], config, top_k: int = 16,
+                 threshold: float = 1e-3, chunk: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """The cache of one view: the samples of the frozen NeRF (`field`, `nerf_params`) along
+  `rays` [H, W] (any leading shape) whose weight is above `threshold` (0 keeps all), as
+  render.render_feature_image places them (the sampler's weighted_samples: the top_k
+  heaviest a ray, or every sample the grid sampler marches), `chunk` rays per jitted call.
+
+  Returns: {"points" [P, 3], "weights" [P], "pixel" [P] int32, "accumulation" [n]} for the
+  n rays, pixel-major.
+  """
+  config = sampling_config(config)
+  sampler = sampler_of(config)
+  config = sampler.render_config(config)
+  chunk = chunk or config.render_chunk
+  host_state = sampler.host_state(nerf_params)
+  nerf_params = jax.device_put(nerf_params)
+  _, flat, blank = flat_rays(rays)
+  n = flat["origins"].shape[0]
+  parts: List[Dict[str, np.ndarray]] = []
+  for start in range(0, n, chunk):
+    size = min(chunk, n - start)
+    piece = padded(flat, blank, np.arange(start, start + size), chunk)
+    budget = sampler.piece_budget(host_state, config, piece)
+    out = jax.tree_util.tree_map(np.asarray, _samples_chunk(field, nerf_params, piece, config,
+                                                            top_k, budget))
+    keep = (out["ray"] < size) & (out["weights"] > threshold)
+    parts.append({"points": out["points"][keep], "weights": out["weights"][keep],
+                  "pixel": (out["ray"][keep] + start).astype(np.int32)})
+  cache = {k: np.concatenate([p[k] for p in parts]) for k in CACHE_KEYS}
+  cache["accumulation"] = np.bincount(cache["pixel"], cache["weights"], n).astype(np.float32)
+  return cache
+
+
+def pack_views(views: List[Dict[str, np.ndarray]], multiple: int = 1024) -> Dict[str, np.ndarray]:
+  """Views' caches (view_samples') as arrays with a leading [N]: their lists padded to the
+  longest, rounded up to `multiple`, with weight 0 at pixel 0 (no effect on any render).
+
+  Returns: {"points" [N, P, 3], "weights" [N, P], "pixel" [N, P], "accumulation" [N, n]}.
+  """
+  longest = max(v["weights"].shape[0] for v in views)
+  size = max(multiple, -(-longest // multiple) * multiple)
+  pad = lambda x: np.concatenate([x, np.zeros((size - x.shape[0], *x.shape[1:]), x.dtype)])
+  packed = {k: np.stack([pad(v[k]) for v in views]) for k in CACHE_KEYS}
+  packed["accumulation"] = np.stack([v["accumulation"] for v in views])
+  return packed
+
+
+def cached_render(colour_fn: Callable[[jnp.ndarray], jnp.ndarray],
+                  cache: Dict[str, jnp.ndarray], background: Optional[jnp.ndarray] = None
+                  ) -> jnp.ndarray:
+  """A colour field rendered from one view's cached samples: the weighted sum of the colours
+  at each pixel's samples, over `background` where the scene is transparent. Pure and
+  jittable (it vmaps over views); its gradient reaches the colour field only.
+
+  Args:
+    colour_fn: points [P, 3] -> colours [..., P, C] (e.g. [M, P, 3]: M styles at once).
+    cache: one view's {"points" [P, 3], "weights" [P], "pixel" [P], "accumulation" [n]}.
+    background: [C] colour composited over by 1 - accumulation, or None (black).
+  Returns: [..., n, C] the n pixels.
+  """
+  chex.assert_rank([cache["points"], cache["weights"]], [2, 1])
+  n = cache["accumulation"].shape[-1]
+  colours = colour_fn(cache["points"])
+  colours = jnp.moveaxis(colours, -2, 0)  # [P, ..., C]
+  weighted = cache["weights"].reshape((-1,) + (1,) * (colours.ndim - 1)) * colours
+  rgb = jax.ops.segment_sum(weighted, cache["pixel"], n)
+  rgb = jnp.moveaxis(rgb, 0, -2)
+  if background is not None:
+    rgb = rgb + (1.0 - cache["accumulation"])[:, None] * background
+  return rgb
