@@ -3,8 +3,10 @@
 Loading a run and its scene (`load_run`, `scene_of`), its field and sampling config
 (`field_of`), rendering rays and images of any run kind in any style vectors
 (`render_rays`, `render_image`, `render_run_rays`), style vectors and blends
-(`style_vectors` of a multi-style run, `style_vector_of` any picture, `blend`), the configs, and the primitives (rays, sampling, volume
-rendering). Everything here is a pure function of its arguments or a frozen dataclass;
+(`style_vectors` of a multi-style run, `style_vector_of` any picture, `blend`), painted colour
+fields (`view_samples` caches a view's samples, `cached_render` renders a colour field from
+them, `deferred_grad`, the style losses `painting_losses`), the configs, and the primitives
+(rays, sampling, volume rendering). Everything here is a pure function of its arguments or a frozen dataclass;
 `render_rays` jits and vmaps (over style vectors, for one).
 """
 
@@ -13,7 +15,7 @@ from typing import Any, Dict, Optional, Tuple
 import jax.numpy as jnp
 
 from msnerf_jax.core.config import (AdainConfig, DataConfig, FeatureConfig, MultistyleConfig,
-                                    NerfConfig, nerf_preset)
+                                    NerfConfig, PaintConfig, nerf_preset)
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.kinds.base import RunKind
@@ -24,6 +26,10 @@ from msnerf_jax.kinds.runs import scene_of as _scene_and_data
 from msnerf_jax.models.feature_field import FeatureFieldFn
 from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.models.painted_field import PaintedField
+from msnerf_jax.kinds.painted import render_painted
+from msnerf_jax.nerf.sample_cache import cached_render, deferred_grad, pack_views, view_samples
+from msnerf_jax.style.painting_loss import nnfm, painting_losses, style_target
 from msnerf_jax.nerf.rays import get_rays, ray_bundle
 from msnerf_jax.nerf.render import (draw_randomness, flat_rays, render_feature_rays,
                                     render_image, render_rays)
@@ -67,10 +73,13 @@ __all__ = [
     "field_of", "render_run_rays", "render_rays", "render_image", "render_feature_rays",
     "draw_randomness", "flat_rays", "NerfField", "MultistyleField", "FeatureFieldFn",
     "SAMPLERS", "sampler_of",
+    # painted colour fields: cached sample lists, their render, the style losses
+    "PaintedField", "render_painted", "view_samples", "pack_views", "cached_render",
+    "deferred_grad", "painting_losses", "nnfm", "style_target",
     # styles
     "style_vectors", "style_vector_of", "style_vector", "blend", "adain",
     # configs
-    "NerfConfig", "MultistyleConfig", "FeatureConfig", "AdainConfig", "DataConfig",
+    "NerfConfig", "MultistyleConfig", "FeatureConfig", "PaintConfig", "AdainConfig", "DataConfig",
     "nerf_preset",
     # primitives
     "get_rays", "ray_bundle", "stratified_samples", "sample_pdf", "volume_render",

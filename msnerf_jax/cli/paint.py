@@ -40,8 +40,8 @@ def register(commands, formatter):
   p.add_argument("--out", required=True, help="run folder")
   add_config_arguments(p, config_lib.PaintConfig, _DEFAULTS, names=_MAIN)
   p.add_argument("--lr", type=float, default=None,
-                 help=f"initial learning rate, decaying exponentially to --lr-final at the "
-                      f"last step (default: {_DEFAULTS.lr_init})")
+                 help=f"initial learning rate, decaying exponentially to --lr-final at "
+                      f"--lr-decay-steps (default: {_DEFAULTS.lr_init})")
   add_config_arguments(p, config_lib.PaintConfig, _DEFAULTS,
                        names=("checkpoint_every", "seed"))
   add_parallel_arguments(p)
@@ -50,6 +50,32 @@ def register(commands, formatter):
                        title="every other painting setting",
                        skip=_MAIN + ("lr_init", "checkpoint_every", "seed"))
   p.set_defaults(func=cmd_train)
+
+  a = verbs.add_parser(
+      "add", formatter_class=formatter,
+      help="add a new style to a painted run in minutes, without retraining it",
+      description="Stylizes 1-3 key training views with per-frame AdaIN (--decoder), paints "
+                  "them into 3D (each painted point takes its colour from the one key view "
+                  "that sees it most: no averaging of views), fills what no key view sees "
+                  "from its painted neighbours, then polishes the new style alone with the "
+                  "run's style loss. The other styles are not touched.",
+      epilog="example: msnerf paint add --run runs/lego_painted --style sketch.png "
+             "--decoder runs/adain")
+  a.add_argument("--run", required=True, help="painted run folder (`msnerf paint train`)")
+  a.add_argument("--style", required=True, metavar="IMG", help="the new style's image")
+  a.add_argument("--decoder", required=True,
+                 help="AdaIN run (`msnerf adain train`) that stylizes the key views")
+  a.add_argument("--key-views", nargs="+", type=int, default=None, metavar="I",
+                 help="the key training views (indices into the training split; default: "
+                      "--count of them spread around the scene)")
+  a.add_argument("--count", type=int, default=2, help="key views chosen when --key-views is "
+                                                     "not given (1-3; default: 2)")
+  a.add_argument("--polish-steps", type=int, default=150,
+                 help="steps of the style loss on the new style afterwards (default: 150)")
+  a.add_argument("--stylize-scale", type=int, default=1,
+                 help="stylize the key views enlarged N times (default: 1)")
+  a.add_argument("--no-progress", action="store_true", help="no progress bars")
+  a.set_defaults(func=cmd_add)
 
 
 def cmd_train(args):
@@ -72,3 +98,21 @@ def cmd_train(args):
                        f"{summary.get('content', float('nan')):.3f}, MSE to the "
                        f"colour-transferred photos {summary.get('mse', float('nan')):.4f}"),
         ("next", f"msnerf render --run {args.out} --out {os.path.join(args.out, 'video')}")])
+
+
+def cmd_add(args):
+  from msnerf_jax.train import paint_add  # pylint: disable=g-import-not-at-top
+  if not 1 <= args.count <= 3:
+    raise UserError(f"--count {args.count}: choose 1 to 3 key views")
+  if args.polish_steps < 0:
+    raise UserError(f"--polish-steps {args.polish_steps}: must be >= 0")
+  result = paint_add.add_style(args.run, args.style, args.decoder, args.key_views, args.count,
+                               args.polish_steps, args.stylize_scale,
+                               progress=not args.no_progress)
+  print_summary("style added", [
+      ("run", args.run), ("style", result["style"]),
+      ("key views", " ".join(str(v) for v in result["views"])
+       + f" (they see {100 * result['seen']:.0f}% of the painted points)"),
+      ("time", f"{result['seconds']:.0f} s"),
+      ("next", f"msnerf render --run {args.run} --style {result['style']} --out "
+               f"{os.path.join(args.run, 'video_' + result['style'])}")])

@@ -43,6 +43,7 @@ from msnerf_jax.models import vgg
 from msnerf_jax.kinds.runs import load_run, scene_of
 from msnerf_jax.kinds.multistyle import style_vectors
 from msnerf_jax.kinds.features import feature_painting
+from msnerf_jax.kinds.painted import render_painted
 from msnerf_jax.kinds.views import render_feature_styles, render_styles, render_view
 from msnerf_jax.core.progress import progress_bar
 
@@ -159,6 +160,24 @@ def feature_field_frames(field, scene, base, base_nerf: str, encoder,
   return frames, geometry
 
 
+def painted_frames(run, scene, base, base_nerf: str, chunk: Optional[int] = None,
+                   progress: bool = False):
+  """({style name: frames [P]}, geometry [P]) of a loaded painted run along the P cameras
+  `base` was rendered on, all its styles in one render per camera; the geometry is `base`'s
+  when it was painted on that NeRF run (`base_nerf`), else its own NeRF's renders."""
+  names = run.record["styles"]
+  frames = {n: [] for n in names}
+  same = os.path.abspath(run.record["nerf_run"]) == os.path.abspath(base_nerf)
+  geometry = []
+  for b in progress_bar(base, desc="painted path", disable=not progress, leave=False):
+    for name, frame in zip(names, render_painted(scene, run.params, run.config, b["pose"],
+                                                 chunk)["rgb"]):
+      frames[name].append(frame)
+    geometry.append(b if same else render_view(scene, run.params["nerf"], run.config.nerf,
+                                               b["pose"], chunk))
+  return frames, geometry
+
+
 def markdown_table(rows: Sequence[Dict[str, Any]], columns: Sequence[str]) -> List[str]:
   """Lines of a Markdown table of `rows` (floats with 4 decimals)."""
   fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
@@ -179,7 +198,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
                  decoder_dir: Optional[str] = None, frames: int = 40,
                  chunk: Optional[int] = None, progress: bool = True,
                  single_style_runs: Sequence[str] = (),
-                 feature_runs: Sequence[str] = ()) -> Dict[str, Any]:
+                 feature_runs: Sequence[str] = (),
+                 painted_runs: Sequence[str] = ()) -> Dict[str, Any]:
   """Evaluates multi-style runs and the baselines on one camera path; writes tables and figures.
 
   Args:
@@ -190,6 +210,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
       train --stylized DIR --style NAME`): the single-style baseline of their style.
     feature_runs: feature-field runs of the same scene (`msnerf features train`), each
       painting every evaluated style from its image (row "feature-field").
+    painted_runs: painted runs of the same scene (`msnerf paint train`), each on the
+      evaluated styles it painted, matched by name (row "painted").
   Returns {"rows": [...], "files": [...], "seconds": float}.
   """
   t0 = time.time()
@@ -219,6 +241,8 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   painted = [feature_field_frames(field, scene, base, run.record["nerf_run"], encoder, pictures,
                                   [sources[n]["alpha"] for n in names], chunk, progress)
              for field in fields]
+  painted_paths = [painted_frames(load_run(d, "painted"), scene, base, run.record["nerf_run"],
+                                  chunk, progress) for d in painted_runs]
   rows, figure_rows = [], []
   for m, name in enumerate(progress_bar(names, desc="scoring styles", disable=not progress)):
     picture = pictures[m]
@@ -234,6 +258,10 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
     for i, (frames_k, geometry) in enumerate(painted):
       label = "feature-field" + (f"#{i + 1}" if len(painted) > 1 else "")
       candidates.append((label, frames_k[m], geometry))
+    for i, (frames_by_name, geometry) in enumerate(painted_paths):
+      if name in frames_by_name:
+        label = "painted" + (f"#{i + 1}" if len(painted_paths) > 1 else "")
+        candidates.append((label, frames_by_name[name], geometry))
     candidates.append(("adain-per-frame", per_frame, base))
     for label, frames_, geometry in candidates:
       rows.append({"method": label, "style": name,
@@ -298,11 +326,12 @@ def _single_style_frames(single, name, scene, poses, chunk, progress):
   return "nerf-single-style", [r["rgb"] for r in renders], renders
 
 
-def write_tables(rows: List[Dict[str, Any]], out_dir: str) -> List[str]:
-  """results.md, results.csv and results.json in out_dir (atomically)."""
-  md = markdown_table(rows, COLUMNS)
+def write_tables(rows: List[Dict[str, Any]], out_dir: str,
+                 columns: Sequence[str] = COLUMNS) -> List[str]:
+  """results.md, results.csv and results.json of `columns` in out_dir (atomically)."""
+  md = markdown_table(rows, columns)
   buffer = io.StringIO()
-  writer = csv.DictWriter(buffer, fieldnames=list(COLUMNS), extrasaction="ignore")
+  writer = csv.DictWriter(buffer, fieldnames=list(columns), extrasaction="ignore")
   writer.writeheader()
   writer.writerows(rows)
   paths = [os.path.join(out_dir, f"results.{ext}") for ext in ("md", "csv", "json")]

@@ -24,7 +24,7 @@ STYLE_IMAGES = "style_images.npy"  # the painted styles' pictures, [M, S, S, 3] 
 
 def painted_field(config: PaintConfig) -> PaintedField:
   """The colour fields of a PaintConfig (scene_box resolved)."""
-  return PaintedField(config.resolution, config.scene_box)
+  return PaintedField(config.scene_box)
 
 
 def save_style_images(run_dir: str, images: np.ndarray) -> None:

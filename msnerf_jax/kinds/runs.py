@@ -106,6 +106,14 @@ def prepare_run_dir(run_dir: str, kind: str, run: Dict[str, Any], lock: bool = F
   return False
 
 
+def write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
+  """Saves a trainer's summary of its last training in the run's run.json (atomically; not
+  part of what defines the run)."""
+  record = read_run_file(run_dir)
+  record["summary"] = summary
+  write_json(os.path.join(run_dir, RUN_FILE), record)
+
+
 def _defining(record: Dict[str, Any]) -> Dict[str, Any]:
   record = json.loads(json.dumps(record))  # deep copy, tuples -> lists
   record.get("config", {}).pop("steps", None)

@@ -97,3 +97,37 @@ def cached_render(colour_fn: Callable[[jnp.ndarray], jnp.ndarray],
   if background is not None:
     rgb = rgb + (1.0 - cache["accumulation"])[:, None] * background
   return rgb
+
+
+def deferred_grad(loss_fn: Callable[[jnp.ndarray], jnp.ndarray], colour_fn: Callable,
+                  params, cache: Dict[str, jnp.ndarray],
+                  background: Optional[jnp.ndarray] = None, chunk: int = 16384):
+  """(loss, d loss / d params) of loss_fn(cached_render of the colour field) by ARF's
+  deferred back-propagation: the view is rendered whole without gradients, the loss is
+  differentiated with respect to its pixels, and the pixel gradients are pulled back to the
+  params through the render of `chunk` samples at a time (a lax.scan), so the memory of the
+  backward pass is one chunk's, not the view's. Rendering is linear in the colours, so this
+  is the direct gradient. Pure and jittable.
+
+  Args:
+    loss_fn: image [..., n, C] -> [] (e.g. a VGG loss on the view reshaped).
+    colour_fn: (params, points [P, 3]) -> colours [..., P, C].
+    cache: one view's sample lists (cached_render's).
+  """
+  render = lambda p, lists, bg: cached_render(functools.partial(colour_fn, p), lists, bg)
+  image = jax.lax.stop_gradient(render(params, cache, background))
+  loss, pixel_grads = jax.value_and_grad(loss_fn)(image)
+  size = cache["weights"].shape[0]
+  pieces = -(-size // chunk)
+  pad = lambda x: jnp.concatenate([x, jnp.zeros((pieces * chunk - size, *x.shape[1:]),
+                                                x.dtype)]).reshape(pieces, chunk, *x.shape[1:])
+  lists = {k: pad(cache[k]) for k in CACHE_KEYS}
+
+  def add_piece(total, piece):
+    piece = {**piece, "accumulation": cache["accumulation"]}
+    _, pull = jax.vjp(lambda p: render(p, piece, None), params)
+    return jax.tree_util.tree_map(jnp.add, total, pull(pixel_grads)[0]), None
+
+  zeros = jax.tree_util.tree_map(jnp.zeros_like, params)
+  grads, _ = jax.lax.scan(add_piece, zeros, lists)
+  return loss, grads

@@ -308,7 +308,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
 def _finish(run_dir: str, hooks: _Hooks, seconds: float, log) -> TrainResult:
   """Saves the summary in run.json, logs it, returns the result."""
   done, metrics, rate = hooks.done, hooks.metrics, hooks.rate()
-  _write_summary(run_dir, {"step": done, "metrics": metrics, "seconds": round(seconds, 1),
+  runs_lib.write_summary(run_dir, {"step": done, "metrics": metrics, "seconds": round(seconds, 1),
                            "images_per_second": round(rate, 3)})
   nan = float("nan")
   log(f"trained {run_dir} to step {done} in {seconds:.0f} s ({rate:.2f} images/s); "
@@ -316,9 +316,3 @@ def _finish(run_dir: str, hooks: _Hooks, seconds: float, log) -> TrainResult:
       f"style {metrics.get('style', nan):.4f}); checkpoints in {run_dir}/checkpoints, "
       f"samples in {run_dir}/samples")
   return TrainResult(run_dir, done, metrics, seconds, rate)
-
-
-def _write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
-  record = runs_lib.read_run_file(run_dir)
-  record["summary"] = summary
-  files.write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)

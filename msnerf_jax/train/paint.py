@@ -9,7 +9,8 @@ first init_steps, so views cannot disagree: one 3D texture serves them all."""
 import dataclasses
 import functools
 import os
-from typing import Any, Callable, Dict, List, Optional, Sequence
+import zlib
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -27,7 +28,7 @@ from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.kinds.painted import NAME as KIND, save_style_images
 from msnerf_jax.models import vgg
 from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.models.painted_field import init_painted_params, trilinear
+from msnerf_jax.models.painted_field import init_painted_params, paint_index, trilinear
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import apply_colour_map, colour_map
@@ -44,31 +45,37 @@ CACHE_FILE = "sample_cache.npz"
 
 
 def frozen_mask(params):
-  """True for every leaf of the NeRF (the optimizer's freeze mask)."""
+  """True for every leaf of the NeRF and for the paint index (the optimizer's freeze mask:
+  only the colours train)."""
   return {FROZEN: jax.tree_util.tree_map(lambda _: True, params[FROZEN]),
-          TRAINED: jax.tree_util.tree_map(lambda _: False, params[TRAINED])}
+          TRAINED: {"colours": False, "index": True}}
 
 
-def init_state(config: PaintConfig, nerf_params, n_styles: int) -> state_lib.TrainState:
-  """Grey grids for `n_styles` styles beside a copy of the NeRF's params; Adam on the grids
-  only (the NeRF gets no optimizer state)."""
+def init_state(config: PaintConfig, nerf_params, n_styles: int, index: np.ndarray,
+               count: int) -> state_lib.TrainState:
+  """Grey colours for `n_styles` styles at the `count` painted vertices of `index`
+  (painted_field.paint_index) beside a copy of the NeRF's params; Adam on the colours only
+  (the NeRF and the index get no optimizer state)."""
   params = {FROZEN: jax.tree_util.tree_map(jnp.array, nerf_params),
-            TRAINED: init_painted_params(n_styles, config.resolution)}
-  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final, config.steps),
-                      frozen=frozen_mask)
+            TRAINED: init_painted_params(n_styles, index, count)}
+  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
+                                               config.lr_decay_steps), frozen=frozen_mask)
   return state_lib.create_state(params, tx)
 
 
 # ----------------------------------------------------------------------------- the step
 
 
-def render_pairs(grids: jnp.ndarray, cache, views: jnp.ndarray, styles: jnp.ndarray,
-                 bound: float, background: jnp.ndarray) -> jnp.ndarray:
+def render_pairs(paint_params, cache, views: jnp.ndarray, styles: jnp.ndarray, bound: float,
+                 background: jnp.ndarray) -> jnp.ndarray:
   """Training views `views` [B] rendered from their cached samples, each in its style
-  `styles` [B] of grids [M, R, R, R, 3]: [B, n, 3] (n pixels of a view)."""
+  `styles` [B] (paint_params {"colours" [M, V + 1, 3], "index"}): [B, n, 3] (n pixels of a
+  view)."""
   def one(view, style):
     lists = {k: cache[k][view] for k in ("points", "weights", "pixel", "accumulation")}
-    colour = lambda points: jax.nn.sigmoid(trilinear(grids[style][None], points, bound))[0]
+    table = paint_params["colours"][style][None]
+    colour = lambda points: jax.nn.sigmoid(trilinear(table, paint_params["index"], points,
+                                                     bound))[0]
     return sample_cache.cached_render(colour, lists, background)
   return jax.vmap(one)(views, styles)
 
@@ -86,55 +93,90 @@ def photo_targets(consts, views: jnp.ndarray, styles: jnp.ndarray, white_backgro
   return moved * acc + (1.0 - acc)
 
 
-def loss_fn(grids, batch, consts, config: PaintConfig, white_background: bool):
-  """The loss of a batch of (view, style) pairs and its terms: MSE to photo_targets while
-  batch["init"] (the first init_steps), else style_weight x (NNFM or AdaIN) + content_weight
-  x content + tv_weight x total variation (painting_loss.painting_losses)."""
+def loss_fn(colours, index, batch, consts, config: PaintConfig, white_background: bool,
+            init: bool):
+  """The loss of a batch of (view, style) pairs and its terms (means over the pairs): with
+  `init` (the first init_steps) the MSE to photo_targets, else style_weight x (NNFM or
+  AdaIN) + content_weight x content + tv_weight x total variation
+  (painting_loss.painting_losses). The loss is the sum over the pairs divided by
+  views_per_style: each style's colours get the gradient of the mean over their own pairs
+  alone, whatever the other styles and the devices are."""
   views, styles = batch["view"], batch["style"]
   shape = consts["photos"].shape[1:]
-  renders = render_pairs(grids, consts["cache"], views, styles, config.scene_box,
-                         consts["background"]).reshape(-1, *shape)
-  photos = photo_targets(consts, views, styles, white_background)
-  mse = jnp.mean(jnp.square(renders - photos))
-  zero = jnp.zeros((), jnp.float32)
-
-  def init_terms():
-    return mse, {"nnfm": zero, "adain": zero, "content": zero, "tv": zero}
-
-  def style_terms():
+  renders = render_pairs({"colours": colours, "index": index}, consts["cache"], views, styles,
+                         config.scene_box, consts["background"]).reshape(-1, *shape)
+  photos = jax.lax.stop_gradient(photo_targets(consts, views, styles, white_background))
+  if config.crop and not init:
+    crop = lambda x, top, left: jax.lax.dynamic_slice(x, (top, left, 0),
+                                                      (config.crop, config.crop, 3))
+    renders = jax.vmap(crop)(renders, batch["top"], batch["left"])
+    photos = jax.vmap(crop)(photos, batch["top"], batch["left"])
+  terms = {"mse": jnp.mean(jnp.square(renders - photos), (1, 2, 3))}
+  if init:  # (the style terms as zeros: both programs give the same statistics)
+    per_pair = terms["mse"]
+    terms.update({k: jnp.zeros_like(per_pair) for k in ("nnfm", "adain", "content", "tv")})
+  else:
     targets = jax.tree_util.tree_map(lambda x: x[styles], consts["targets"])
-    terms = {k: jnp.mean(v) for k, v in painting_loss.painting_losses(
-        consts["encoder"], renders, jax.lax.stop_gradient(photos), targets).items()}
-    loss = (config.style_weight * terms[config.style_loss]
-            + config.content_weight * terms["content"] + config.tv_weight * terms["tv"])
-    return loss, terms
-
-  loss, terms = jax.lax.cond(batch["init"][0], init_terms, style_terms)
-  return loss, {"loss": loss, "mse": mse, **terms}
+    terms.update(painting_loss.painting_losses(consts["encoder"], renders, photos, targets))
+    per_pair = (config.style_weight * terms[config.style_loss]
+                + config.content_weight * terms["content"] + config.tv_weight * terms["tv"])
+  loss = jnp.sum(per_pair) / config.views_per_style
+  return loss, {"loss": jnp.mean(per_pair), **{k: jnp.mean(v) for k, v in terms.items()}}
 
 
 def train_step(state: state_lib.TrainState, batch, consts, *, config: PaintConfig,
-               white_background: bool, axis_name: Optional[str] = None):
-  """One Adam step on the grids; the NeRF comes out bit-identical (passed through)."""
+               white_background: bool, init: bool, axis_name: Optional[str] = None):
+  """One Adam step on the colours; the NeRF and the index come out bit-identical (passed
+  through). The devices' gradients are summed (each holds other pairs: loss_fn's sum), so
+  a step does not depend on how the pairs are split."""
   params = state.params
-  grads, stats = jax.grad(loss_fn, has_aux=True)(params[TRAINED]["grids"], batch, consts,
-                                                 config, white_background)
+  paint = params[TRAINED]
+  grads, stats = jax.grad(loss_fn, has_aux=True)(paint["colours"], paint["index"], batch,
+                                                 consts, config, white_background, init)
   if axis_name is not None:
-    grads = jax.lax.pmean(grads, axis_name)
+    grads = jax.lax.psum(grads, axis_name)
     stats = jax.lax.pmean(stats, axis_name)
   zeros = jax.tree_util.tree_map(jnp.zeros_like, params[FROZEN])
-  state = state.apply_gradients(grads={FROZEN: zeros, TRAINED: {"grids": grads}})
-  return state.replace(params={FROZEN: params[FROZEN], TRAINED: state.params[TRAINED]}), stats
+  state = state.apply_gradients(grads={FROZEN: zeros, TRAINED: {
+      "colours": grads, "index": jnp.zeros_like(paint["index"])}})
+  trained = {"colours": state.params[TRAINED]["colours"], "index": paint["index"]}
+  return state.replace(params={FROZEN: params[FROZEN], TRAINED: trained}), stats
 
 
-def batch_of(step: int, config: PaintConfig, n_views: int, n_styles: int) -> Dict[str, Any]:
-  """The (view, style) pairs of a step: every style views_per_style times, each with a
-  random training view (a pure function of the step, so a resumed run replays it)."""
+def compile_train_step(config: PaintConfig, consts, parallel: DataParallel,
+                       white_background: bool) -> Callable:
+  """The placed (state, batch) -> (state, stats) step: two compiled programs, the init fit
+  and the style loss, chosen on the host by the batch's "init" flag (a lax.cond between them
+  measured 2x slower on the CPU)."""
+  steps = {init: parallel.compile(functools.partial(
+      train_step, config=config, white_background=white_background, init=init), (consts,))
+           for init in (True, False)}
+  def step(state, batch):
+    init = bool(np.asarray(jax.device_get(batch["init"])).reshape(-1)[0])
+    return steps[init](state, batch)
+  return step
+
+
+def batch_of(step: int, config: PaintConfig, n_views: int, names: Sequence[str],
+             size: Tuple[int, int] = (0, 0)) -> Dict[str, Any]:
+  """The (view, style) pairs of a step, style-major: every style views_per_style times,
+  each with random training views (and, with config.crop, a random crop of the views'
+  `size` (H, W)) drawn from a key of the step and the style's name (a pure function of
+  them, so a resumed run replays it, and a style's pairs do not depend on the other styles
+  of the run); "init" marks the init fit's steps."""
   key = jax.random.fold_in(jax.random.PRNGKey(config.seed), step)
-  b = n_styles * config.views_per_style
-  return {"view": np.asarray(jax.random.randint(key, (b,), 0, n_views), np.int32),
-          "style": np.tile(np.arange(n_styles, dtype=np.int32), config.views_per_style),
-          "init": np.full((b,), step < config.init_steps)}
+  v, n_styles = config.views_per_style, len(names)
+  keys = [jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF) for name in names]
+  views = [np.asarray(jax.random.randint(k, (v,), 0, n_views)) for k in keys]
+  batch = {"view": np.concatenate(views).astype(np.int32),
+           "style": np.repeat(np.arange(n_styles, dtype=np.int32), v),
+           "init": np.full((n_styles * v,), step < config.init_steps)}
+  if config.crop:
+    high = np.asarray([size[0] - config.crop + 1, size[1] - config.crop + 1])
+    corner = np.concatenate([np.asarray(jax.random.randint(
+        jax.random.fold_in(k, 1), (v, 2), 0, high)) for k in keys]).astype(np.int32)
+    batch["top"], batch["left"] = corner[:, 0], corner[:, 1]
+  return batch
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -167,28 +209,50 @@ def build_cache(scene, nerf_run, config: PaintConfig, progress: bool) -> Dict[st
   return sample_cache.pack_views(views)
 
 
+def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
+  """The sample lists cached at `path` (None when there are none yet); UserError for a file
+  that is not a cache or one made from another NeRF run than `made_from` ("RUN@STEP")."""
+  if not os.path.exists(path):
+    return None
+  try:
+    with np.load(path) as saved:
+      source = str(saved["nerf_run"]) if "nerf_run" in saved.files else ""
+      if source != made_from:
+        raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
+                        f"{made_from}; delete it to rebuild")
+      return {k: saved[k] for k in saved.files if k != "nerf_run"}
+  except UserError:
+    raise
+  except (OSError, ValueError, KeyError, EOFError) as e:
+    raise UserError(f"{path}: not a sample cache ({e}); delete it to rebuild") from None
+
+
+def cache_source(nerf_run) -> str:
+  """What a cache records of the NeRF run it was made from: "ABSOLUTE_FOLDER@STEP"."""
+  return f"{os.path.abspath(nerf_run.run_dir)}@{nerf_run.step}"
+
+
 def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, progress: bool
                         ) -> Dict[str, np.ndarray]:
   """The run's cached sample lists (RUN/sample_cache.npz), built and written atomically on
   first use. UserError for a cache made from another NeRF run (or another step of it)."""
   path = os.path.join(run_dir, CACHE_FILE)
-  made_from = f"{os.path.abspath(nerf_run.run_dir)}@{nerf_run.step}"
-  if os.path.exists(path):
-    try:
-      with np.load(path) as saved:
-        cache = {k: saved[k] for k in saved.files}
-    except (OSError, ValueError, KeyError) as e:
-      raise UserError(f"{path}: not a sample cache ({e}); delete it to rebuild") from None
-    source = str(cache.pop("nerf_run", ""))
-    if source != made_from:
-      raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
-                      f"{made_from}; delete it to rebuild")
+  made_from = cache_source(nerf_run)
+  cache = read_cache(path, made_from)
+  if cache is not None:
     return cache
   cache = build_cache(scene, nerf_run, config, progress)
   with atomic_path(path, sum(v.nbytes for v in cache.values())) as tmp:
     with open(tmp, "wb") as f:
       np.savez(f, nerf_run=np.array(made_from), **cache)
   return cache
+
+
+def index_of(cache, config: PaintConfig):
+  """(index, V) of the painted vertices: those around every cached sample that carries
+  weight, grown by one vertex (painted_field.paint_index)."""
+  return paint_index((p[w > 0] for p, w in zip(cache["points"], cache["weights"])),
+                     config.resolution, config.scene_box)
 
 
 def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, Any]:
@@ -211,8 +275,13 @@ def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str
       background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
 
 
-def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel) -> None:
+def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, scene) -> None:
+  """UserError naming what cannot work: PaintConfig.validate, then what depends on the
+  styles, the devices and the views' size."""
   config.validate()
+  if config.crop > min(scene.height, scene.width):
+    config_lib.bad_setting(config, "crop", f"larger than the {scene.width}x{scene.height} "
+                                           "views")
   if (n_styles * config.views_per_style) % parallel.size:
     raise UserError(f"{n_styles} styles x {config.views_per_style} views per style do not "
                     f"split over {parallel.size} devices")
@@ -235,11 +304,12 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
   box = config.scene_box or nerf_run.config.scene_box or nerf_lib.scene_box(scene)
   config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
   devices = data_parallel(n_devices, parallel)
-  check_config(config, len(names), devices)
+  check_config(config, len(names), devices, scene)
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
             "nerf_run": os.path.abspath(nerf_run_dir), "styles": names,
             "style_files": [os.path.abspath(p) for p in style_paths]}
   distributed.check_same(record, "settings")
+  read_cache(os.path.join(run_dir, CACHE_FILE), cache_source(nerf_run))  # before any write
   holder: List[Dict[str, np.ndarray]] = []
 
   def prepare():
@@ -249,14 +319,16 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
   distributed.primary_first(prepare)
   cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
   consts = constants(scene, cache, styles, config)
-  step = devices.compile(functools.partial(train_step, config=config,
-                                           white_background=scene.white_background),
-                         (consts,))
+  index, count = index_of(cache, config)
   n_views = len(scene.split("train"))
-  return loop_lib.fit(
-      init_state(config, nerf_run.params, len(names)), step,
-      lambda i: batch_of(i, config, n_views, len(names)),
+  summary = loop_lib.fit(
+      init_state(config, nerf_run.params, len(names), index, count),
+      compile_train_step(config, consts, devices, scene.white_background),
+      lambda i: batch_of(i, config, n_views, names, (scene.height, scene.width)),
       run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
       keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="paint train",
       progress=progress, callback=callback, shown=("mse", config.style_loss, "content"))
-
+  if distributed.is_primary():
+    runs_lib.write_summary(run_dir, {k: summary[k] for k in ("steps", "resumed_from",
+                                                             "seconds", "devices")})
+  return summary

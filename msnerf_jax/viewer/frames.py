@@ -92,8 +92,9 @@ class Frames:
       # A painting kind's "original" is the scene's own statistics: the strength slider
       # blends towards it.
       self.styles, self._painted_size = kind.style_table(run, scene)
-    if kind.paints_any_style:
-      # Low frames, drawn while the camera moves, are painted on one cell grid.
+    if kind.paints_any_style or kind.field is None:
+      # Kinds drawn by their own style renderer (a feature run: low frames, drawn while the
+      # camera moves, are painted on one cell grid; a painted run).
       decoder = painting_decoder(run, decoder_dir)
       self._paint = {level: kind.style_renderer(run, scene, None,
                                                 1 if level == "low" else grids, decoder)
@@ -183,7 +184,8 @@ class Frames:
 
   def _render_features(self, request: Request, level: str, cancelled: Callable[[], bool]
                        ) -> Optional[np.ndarray]:
-    """A feature run's frame (see render): one feature render, AdaIN and decode."""
+    """The frame of a kind drawn by its style renderer (see render): a feature run's one
+    feature render, AdaIN and decode; a painted run's colour fields, mixed."""
     with self._lock:
       if cancelled():
         return None

@@ -189,15 +189,20 @@ class ViewerServer:
             "strength", 0.0, 1.0, 0.01, 1.0, disabled=ORIGINAL not in frames.styles,
             hint="0: the original scene, 1: the full style" if ORIGINAL in frames.styles
             else "this run has no 'original' style to blend from")
-        if get_kind(frames.run.kind).paints_any_style:
+        kind = get_kind(frames.run.kind)
+        if kind.paints_any_style:
           gui.add_markdown("A feature field (AdaIN in 3D): it paints any style image. "
                            "Upload one, or give `--styles` to `msnerf view`.")
-        state.gui["upload"] = gui.add_upload_button(
-            "upload a style image", mime_type="image/*",
-            hint="any painting or photo: its style vector is computed here")
+        if kind.paints_any_style or kind.field is not None:
+          state.gui["upload"] = gui.add_upload_button(
+              "upload a style image", mime_type="image/*",
+              hint="any painting or photo: its style vector is computed here")
+          state.gui["upload"].on_upload(lambda event: self._upload(client_id, event))
+        else:
+          gui.add_markdown(f"A {kind.title} run: its styles are painted on the scene. Add one "
+                           f"with `msnerf paint add --run {frames.run.run_dir} --style IMG`.")
         for name in ("style", "blend_with", "blend", "strength"):
           state.gui[name].on_update(changed)
-        state.gui["upload"].on_upload(lambda event: self._upload(client_id, event))
       else:
         gui.add_markdown(f"A {frames.run.kind} run: the scene as trained, no styles.")
     with gui.add_folder("Camera"):

@@ -1,0 +1,126 @@
+"""Evaluating a painted run against per-frame AdaIN on one camera path, with the metric's
+floors: for each painted style, the painted frames and the per-frame AdaIN frames (the NeRF's
+render of each camera stylized on its own by an AdaIN decoder) get short- and long-range
+consistency (warped RMSE and LPIPS, k = 1 and 7), the style distance to the style picture
+(AdaIN statistics and Gram), the content loss (relu4_1 MSE to the NeRF's photo-real frame)
+and, over the styles, how distinct they stay (the mean pairwise AdaIN-statistics distance
+between the styles' frames of one camera). Floors of the consistency metric: the photo-real
+NeRF's own frames, and a random texture painted on the same geometry (random colours at the
+painted vertices) rendered along the same path.
+"""
+
+import itertools
+import os
+import time
+from typing import Any, Dict, List, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax.core.progress import progress_bar
+from msnerf_jax.data import images as images_lib
+from msnerf_jax.data import video
+from msnerf_jax.eval import metrics
+from msnerf_jax.eval.evaluate import (markdown_table, painted_frames, per_frame_adain, score,
+                                      write_tables)
+from msnerf_jax.kinds import stylized_scenes
+from msnerf_jax.kinds.painted import render_painted
+from msnerf_jax.kinds.runs import load_run, scene_of
+from msnerf_jax.kinds.views import render_view
+from msnerf_jax.models import vgg
+from msnerf_jax.style import adain as adain_lib
+
+COLUMNS = ("method", "style", "rmse_k1", "lpips_k1", "rmse_k7", "lpips_k7", "style_adain",
+           "style_gram", "content", "distinct")
+BASELINE = "adain-per-frame"
+
+
+def content_loss(encoder, frames: Sequence[np.ndarray], photos: Sequence[np.ndarray]) -> float:
+  """Mean relu4_1 MSE between frames and the photo-real frames of the same cameras."""
+  ours = adain_lib.encode(encoder, jnp.asarray(np.stack(frames)))["relu4_1"]
+  real = adain_lib.encode(encoder, jnp.asarray(np.stack(photos)))["relu4_1"]
+  return float(jnp.mean(jnp.square(ours - real)))
+
+
+def distinctness(encoder, frames_by_style: Sequence[Sequence[np.ndarray]]) -> float:
+  """Mean over pairs of styles and cameras of the AdaIN-statistics distance between the two
+  styles' frames of the camera (metrics.style_distance's "adain")."""
+  pairs = []
+  for a, b in itertools.combinations(range(len(frames_by_style)), 2):
+    for fa, fb in zip(frames_by_style[a], frames_by_style[b]):
+      pairs.append(float(metrics.style_distance(encoder, jnp.asarray(fa)[None],
+                                                jnp.asarray(fb)[None])["adain"][0]))
+  return float(np.mean(pairs)) if pairs else float("nan")
+
+
+def random_texture(run, seed: int = 0) -> Dict[str, Any]:
+  """The painted run's params with one style of random colours (uniform in [0, 1]) at its
+  painted vertices: a texture truly on the geometry, with the contrast of noise."""
+  colours = run.params["paint"]["colours"]
+  noise = jax.random.uniform(jax.random.PRNGKey(seed), colours.shape[1:], minval=1e-3,
+                             maxval=1.0 - 1e-3)
+  return {**run.params, "paint": {**run.params["paint"],
+                                  "colours": np.asarray(jnp.log(noise / (1.0 - noise)))[None]}}
+
+
+def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int = 40,
+                     scale: int = 1, chunk: Optional[int] = None, progress: bool = True
+                     ) -> Dict[str, Any]:
+  """Evaluates a painted run and per-frame AdaIN (decoder `decoder_dir`, each frame
+  stylized at `scale` times its size, as `msnerf stylize-scene --stylize-scale`) in every
+  painted style along `frames` cameras of the scene's render path; writes results.md/.csv/
+  .json and frames.png (rows: style x method, 4 frames) in out_dir.
+
+  Returns {"rows": [...], "ratios": {style: {column: painted / per-frame}}, "files",
+  "seconds"}.
+  """
+  t0 = time.time()
+  run = load_run(run_dir, "painted")
+  scene, _ = scene_of(run)
+  decoder = stylized_scenes.load_decoder(decoder_dir)
+  encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
+  poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
+                             .round().astype(int)]
+  names = list(run.record["styles"])
+  base = [{**render_view(scene, run.params["nerf"], run.config.nerf, c2w, chunk), "pose": c2w}
+          for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
+  by_name, _ = painted_frames(run, scene, base, run.record["nerf_run"], chunk, progress)
+  painted = [by_name[n] for n in names]
+  noise = random_texture(run)
+  texture = [render_painted(scene, noise, run.config, c2w, chunk)["rgb"][0] for c2w in poses]
+  pictures = [images_lib.read_image(p, max_side=1024) for p in run.record["style_files"]]
+  per_frame = [per_frame_adain(decoder, encoder, base, picture, 1.0, scene.white_background,
+                               scale) for picture in progress_bar(
+                                   pictures, desc="per-frame AdaIN", disable=not progress,
+                                   leave=False)]
+  depths, accs = [b["depth"] for b in base], [b["accumulation"] for b in base]
+  photos = [b["rgb"] for b in base]
+  rows, figure = [], []
+  distinct = {"painted": distinctness(encoder, painted), BASELINE: distinctness(encoder, per_frame)}
+  for m, name in enumerate(names):
+    style = images_lib.cover_crop(pictures[m], scene.height, scene.width)
+    for method, frames_ in (("painted", painted[m]), (BASELINE, per_frame[m])):
+      rows.append({"method": method, "style": name,
+                   **score(frames_, depths, accs, poses, scene.K, scene.ndc, style, encoder,
+                           lpips_params),
+                   "content": content_loss(encoder, frames_, photos),
+                   "distinct": distinct[method]})
+      figure.append(list(frames_[:: max(1, len(frames_) // 4)][:4]))
+  for method, frames_ in (("floor: photo-real NeRF", photos), ("floor: random texture", texture)):
+    rows.append({"method": method, "style": "-",
+                 **score(frames_, depths, accs, poses, scene.K, scene.ndc, photos[0], encoder,
+                         lpips_params), "content": content_loss(encoder, frames_, photos),
+                 "distinct": float("nan")})
+  ratios = {name: {c: rows[2 * m][c] / rows[2 * m + 1][c] for c in COLUMNS[2:]}
+            for m, name in enumerate(names)}
+  os.makedirs(out_dir, exist_ok=True)
+  files = write_tables(rows, out_dir, COLUMNS)
+  files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure))
+  return {"rows": rows, "ratios": ratios, "files": files, "seconds": time.time() - t0}
+
+
+def ratio_table(ratios: Dict[str, Dict[str, float]]) -> List[str]:
+  """Markdown lines of painted / per-frame AdaIN per style and column."""
+  rows = [{"style": name, **r} for name, r in ratios.items()]
+  return markdown_table(rows, ("style",) + COLUMNS[2:])

@@ -1,0 +1,422 @@
+"""Painted colour fields: the cached render, deferred back-propagation, the trainer's
+promises (frozen NeRF, independent styles, resume, devices) and its bad input."""
+
+import dataclasses
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+import msnerf_jax
+from msnerf_jax import cli
+from msnerf_jax.core.config import DataConfig, PaintConfig
+from msnerf_jax.data.scene import load_scene
+from msnerf_jax.kinds import painted as painted_kind
+from msnerf_jax.kinds.renderers import style_rendering
+from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.models.painted_field import PaintedField, trilinear
+from msnerf_jax.nerf import render as render_lib
+from msnerf_jax.nerf import sample_cache
+from msnerf_jax.style import painting_loss
+from msnerf_jax.train import nerf, paint
+
+from conftest import write_blender_scene
+from test_fast_trunk import TINY_FAST
+from test_multistyle import write_style
+from test_train_nerf import TINY
+
+TINY_PAINT = PaintConfig(resolution=12, steps=4, init_steps=2, style_size=32,
+                         checkpoint_every=2)
+PAINT_ARGS = ["--resolution", "12", "--steps", "4", "--init-steps", "2", "--style-size", "32",
+              "--checkpoint-every", "2"]
+
+
+def leaves(tree):
+  return jax.tree_util.tree_leaves(tree)
+
+
+def dense_paint(key, n_styles, resolution):
+  """Random colour logits at every vertex of a resolution^3 grid (all painted)."""
+  index = np.arange(resolution ** 3, dtype=np.int32).reshape((resolution,) * 3)
+  return {"colours": jax.random.normal(key, (n_styles, resolution ** 3 + 1, 3)),
+          "index": jnp.asarray(index)}
+
+
+@pytest.fixture(scope="module")
+def paint_world(tmp_path_factory):
+  """A tiny scene (24 x 24), a fast NeRF and an MLP one (6 steps each), two styles, and a
+  painted run on the fast NeRF made through the CLI."""
+  root = tmp_path_factory.mktemp("paint")
+  scene_dir = write_blender_scene(str(root / "scene"), n_train=4, n_val=2, size=24)
+  scene, data = load_scene(DataConfig(path=scene_dir))
+  runs = {}
+  for name, config in (("fast", TINY_FAST), ("mlp", TINY)):
+    runs[name] = str(root / name)
+    nerf.train(scene, config, data, runs[name], progress=False)
+  styles = [write_style(root / f"{n}.png", c) for n, c in (("red", (200, 40, 40)),
+                                                            ("blue", (40, 40, 200)))]
+  run = str(root / "painted")
+  assert cli.main(["paint", "train", "--nerf", runs["fast"], "--styles", *styles, "--out", run]
+                  + PAINT_ARGS) == 0
+  return {"root": root, "scene_dir": scene_dir, "scene": scene, "nerfs": runs,
+          "styles": styles, "run": run}
+
+
+# ----------------------------------------------------------------------------- the cache
+
+
+@pytest.mark.parametrize("sampler", ["fast", "mlp"])
+def test_the_cached_render_equals_the_full_render(paint_world, sampler):
+  scene, source = paint_world["scene"], msnerf_jax.load_run(paint_world["nerfs"][sampler])
+  field = PaintedField(1.5)
+  params = dense_paint(jax.random.PRNGKey(0), 2, 8)
+  rays = scene.camera_rays(1)
+  full = render_lib.render_feature_image(NerfField(source.config), field,
+                                         {"nerf": source.params, "features": params}, rays,
+                                         source.config, 4)
+  cache = sample_cache.view_samples(NerfField(source.config), source.params, rays,
+                                    source.config, top_k=4, threshold=0.0)
+  cached = sample_cache.cached_render(lambda p: field.colours(params, p),
+                                      jax.tree_util.tree_map(jnp.asarray, cache))
+  want = full["features"].reshape(-1, 2, 3).transpose(1, 0, 2)
+  assert float(np.max(full["accumulation"])) > 0.05  # the view sees something
+  np.testing.assert_allclose(np.asarray(cached), want, atol=1e-5)
+  np.testing.assert_allclose(cache["accumulation"], full["accumulation"].reshape(-1), atol=1e-5)
+  middle = float(np.median(cache["weights"]))
+  kept = sample_cache.view_samples(NerfField(source.config), source.params, rays,
+                                   source.config, top_k=4, threshold=middle)
+  assert kept["weights"].size < cache["weights"].size and np.all(kept["weights"] > middle)
+
+
+def test_packed_views_render_under_vmap_as_one_by_one(paint_world):
+  source = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  scene = paint_world["scene"]
+  views = [sample_cache.view_samples(NerfField(source.config), source.params,
+                                     scene.camera_rays(i), source.config) for i in range(3)]
+  packed = jax.tree_util.tree_map(jnp.asarray, sample_cache.pack_views(views, multiple=64))
+  paint_params = dense_paint(jax.random.PRNGKey(1), 1, 8)
+  colour = lambda p: jax.nn.sigmoid(trilinear(paint_params["colours"], paint_params["index"],
+                                              p, 1.5))[0]
+  white = jnp.ones(3)
+  batched = jax.vmap(lambda v: sample_cache.cached_render(colour, v, white))(packed)
+  for i, view in enumerate(views):
+    one = sample_cache.cached_render(colour, jax.tree_util.tree_map(jnp.asarray, view), white)
+    np.testing.assert_allclose(np.asarray(batched[i]), np.asarray(one), atol=1e-6)
+
+
+def test_deferred_back_propagation_gives_the_direct_gradient(paint_world):
+  source = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  scene = paint_world["scene"]
+  cache = jax.tree_util.tree_map(jnp.asarray, sample_cache.view_samples(
+      NerfField(source.config), source.params, scene.camera_rays(0), source.config,
+      threshold=0.0))
+  start = dense_paint(jax.random.PRNGKey(2), 1, 8)
+  params, index = start["colours"], start["index"]
+  target = jnp.asarray(scene.images[0]).reshape(-1, 3)
+  loss = lambda image: jnp.mean(jnp.square(image[0] - target) * (1.0 + target))
+  colours = lambda p, points: PaintedField(1.5).colours({"colours": p, "index": index}, points)
+  bg = jnp.ones(3)
+  direct = jax.grad(lambda p: loss(sample_cache.cached_render(
+      lambda x: colours(p, x), cache, bg)))(params)
+  assert cache["weights"].shape[0] > 100  # several chunks below
+  value, deferred = jax.jit(lambda p: sample_cache.deferred_grad(loss, colours, p, cache, bg,
+                                                                 chunk=64))(params)
+  assert float(jnp.max(jnp.abs(direct))) > 1e-6
+  np.testing.assert_allclose(deferred, direct, atol=1e-5)
+  assert np.isfinite(float(value))
+
+
+# ----------------------------------------------------------------------------- the losses
+
+
+def test_nnfm_is_zero_on_the_styles_own_features_and_positive_elsewhere():
+  rng = np.random.default_rng(0)
+  style = jnp.asarray(rng.normal(size=(50, 16)), jnp.float32)
+  unit = style / jnp.linalg.norm(style, axis=-1, keepdims=True)
+  assert float(painting_loss.nnfm(3.0 * style[10:20], unit)) < 1e-6  # scale-free
+  assert float(painting_loss.nnfm(jnp.asarray(rng.normal(size=(10, 16)), jnp.float32), unit)) > 0.1
+
+
+# ----------------------------------------------------------------------------- the trainer
+
+
+def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(paint_world):
+  from msnerf_jax.core import checkpoint  # pylint: disable=g-import-not-at-top
+  run = msnerf_jax.load_run(paint_world["run"])
+  source = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  assert run.kind == "painted" and set(run.params) == {"nerf", "paint"}
+  index, colours = run.params["paint"]["index"], run.params["paint"]["colours"]
+  assert index.shape == (12, 12, 12) and colours.shape == (2, index.max() + 1, 3)
+  assert 0 < index.max() < 12 ** 3  # the painted vertices: around the samples only
+  assert run.record["styles"] == ["red", "blue"]
+  for a, b in zip(leaves(run.params["nerf"]), leaves(source.params)):
+    assert np.array_equal(np.asarray(a).view(np.uint32), np.asarray(b).view(np.uint32))
+  assert np.any(colours[:, :-1] != 0) and np.all(colours[:, -1] == 0)  # unpainted: untouched
+  ckpts = checkpoint.Checkpoints(paint_world["run"])
+  raw = ckpts.restore()
+  ckpts.close()
+  paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(raw["opt_state"])]
+  assert paths and all("nerf" not in p for p in paths) and any("colours" in p for p in paths)
+  assert all("index" not in p for p in paths)
+
+
+def test_the_init_fit_moves_each_style_towards_its_colours(paint_world, tmp_path):
+  """After the MSE fit to the colour-transferred photos, the red style renders redder than
+  the blue one, and the blue one bluer."""
+  run_dir = str(tmp_path / "init")
+  paint.train(dataclasses.replace(TINY_PAINT, steps=30, init_steps=30, lr_init=0.2,
+                                  lr_final=0.1, checkpoint_every=30),
+              paint_world["nerfs"]["fast"], paint_world["styles"], run_dir, progress=False)
+  run = msnerf_jax.load_run(run_dir)
+  rgb = painted_kind.render_painted(paint_world["scene"], run.params, run.config, 0)["rgb"]
+  acc = painted_kind.render_painted(paint_world["scene"], run.params, run.config, 0)["accumulation"]
+  mask = acc > 0.5
+  assert mask.sum() > 10
+  red, blue = rgb[0][mask].mean(0), rgb[1][mask].mean(0)
+  assert red[0] - red[2] > 0.1 and blue[2] - blue[0] > 0.1
+
+
+def test_k_styles_render_in_one_call_as_k_single_styles_and_blend_as_colours(paint_world):
+  run = msnerf_jax.load_run(paint_world["run"])
+  scene = paint_world["scene"]
+  both = painted_kind.render_painted(scene, run.params, run.config, 1)["rgb"]
+  for m in range(2):
+    single = {"nerf": run.params["nerf"],
+              "paint": {**run.params["paint"], "colours": run.params["paint"]["colours"][m:m + 1]}}
+    one = painted_kind.render_painted(scene, single, run.config, 1)["rgb"]
+    np.testing.assert_allclose(one[0], both[m], atol=1e-6)
+  table, size, render = style_rendering(run, scene)
+  assert size is None and list(table) == ["red", "blue", "original"]
+  half = 0.5 * table["red"] + 0.5 * table["blue"]
+  out = render(1, [table["red"], half])
+  np.testing.assert_allclose(out[0], both[0], atol=1e-6)
+  np.testing.assert_allclose(out[1], 0.5 * (both[0] + both[1]), atol=1e-5)
+  photo = render(1, [table["original"]])[0]  # the NeRF's own colours
+  nerf_view = msnerf_jax.api.render_image(NerfField(run.config.nerf), run.params["nerf"],
+                                          scene.camera_rays(1), run.config.nerf, True)["rgb"]
+  np.testing.assert_allclose(photo, nerf_view, atol=1e-6)
+
+
+def test_a_style_paints_the_same_in_a_run_of_one_style(paint_world, tmp_path):
+  """Per-style grids: a style's colours in a run of M styles are those of a run of that
+  style alone (its pairs come from its own name, its gradient from its own pairs)."""
+  single = str(tmp_path / "single")
+  paint.train(TINY_PAINT, paint_world["nerfs"]["fast"], paint_world["styles"][1:], single,
+              progress=False)
+  both = msnerf_jax.load_run(paint_world["run"]).params["paint"]["colours"]
+  one = msnerf_jax.load_run(single).params["paint"]["colours"]
+  # (to float rounding: VGG runs on a batch of 4 images there, of 2 here)
+  np.testing.assert_allclose(one[0], both[1], atol=1e-4)
+
+
+def test_a_resumed_painting_ends_bit_identical(paint_world, tmp_path):
+  split = str(tmp_path / "split")
+  nerf_run = paint_world["nerfs"]["fast"]
+  paint.train(dataclasses.replace(TINY_PAINT, steps=2), nerf_run, paint_world["styles"], split,
+              progress=False)
+  assert paint.train(TINY_PAINT, nerf_run, paint_world["styles"], split,
+                     progress=False)["resumed_from"] == 2
+  a = msnerf_jax.load_run(paint_world["run"]).params["paint"]["colours"]
+  b = msnerf_jax.load_run(split).params["paint"]["colours"]
+  np.testing.assert_array_equal(a, b)
+
+
+TWO_DEVICES = textwrap.dedent("""
+    import os, sys
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    import dataclasses, jax, numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_paint import TINY_PAINT
+    from msnerf_jax.train import paint
+    import msnerf_jax
+    grids = []
+    for n, out in ((1, {one!r}), (2, {two!r})):
+      paint.train(TINY_PAINT, {nerf!r}, {styles!r}, out, n_devices=n, progress=False)
+      run = msnerf_jax.load_run(out)
+      grids.append(run.params["paint"]["colours"])
+    print("worst", float(np.max(np.abs(grids[0] - grids[1]))))
+    np.testing.assert_array_equal(grids[0], grids[1])
+""")
+
+
+@pytest.mark.slow  # a subprocess with two compilations
+def test_two_devices_paint_as_one(paint_world, tmp_path):
+  code = TWO_DEVICES.format(tests=os.path.dirname(os.path.abspath(__file__)),
+                            nerf=paint_world["nerfs"]["fast"], styles=paint_world["styles"],
+                            one=str(tmp_path / "one"), two=str(tmp_path / "two"))
+  result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+  assert result.returncode == 0, result.stdout + result.stderr[-3000:]
+
+
+def test_msnerf_render_writes_a_painted_runs_videos(paint_world, tmp_path):
+  out = str(tmp_path / "video")
+  assert cli.main(["render", "--run", paint_world["run"], "--out", out, "--style", "blue",
+                   "--frames", "3", "--grid-views", "2"]) == 0
+  assert os.path.getsize(out + ".mp4") > 0 and os.path.exists(out + "_grid.png")
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _animated(path):
+  frames = [Image.new("RGB", (32, 32), c) for c in ((255, 0, 0), (0, 0, 255))]
+  frames[0].save(path, save_all=True, append_images=frames[1:])
+  return str(path)
+
+
+@pytest.mark.parametrize("bad", ["missing", "folder", "tiny", "animated", "text", "none"])
+def test_bad_styles_get_one_line_and_write_nothing(paint_world, tmp_path, capsys, bad):
+  folder = tmp_path / "folder"
+  folder.mkdir()
+  tiny = tmp_path / "tiny.png"
+  Image.new("RGB", (1, 1)).save(tiny)
+  text = tmp_path / "text.jpg"
+  text.write_text("not an image")
+  style = {"missing": [str(tmp_path / "no.jpg")], "folder": [str(folder)],
+           "tiny": [str(tiny)], "animated": [_animated(tmp_path / "anim.gif")],
+           "text": [str(text)], "none": []}[bad]
+  out = tmp_path / "out"
+  assert cli.main(["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
+                   *style, "--out", str(out)] + PAINT_ARGS) == 2
+  err = capsys.readouterr().err.strip().splitlines()
+  assert len(err) == 1 and err[0].startswith("msnerf: error: "), err
+  want = {"missing": "no such file", "folder": "is a folder", "tiny": "need at least 16x16",
+          "animated": "animated", "text": "not an image", "none": "--styles"}[bad]
+  assert want in err[0]
+  assert not out.exists()
+
+
+def test_a_nerf_run_of_another_kind_is_refused(paint_world, tmp_path, capsys):
+  out = tmp_path / "out"
+  assert cli.main(["paint", "train", "--nerf", paint_world["run"], "--styles",
+                   paint_world["styles"][0], "--out", str(out)] + PAINT_ARGS) == 2
+  assert "a 'painted' run, not a 'nerf' run" in capsys.readouterr().err
+  assert not out.exists()
+
+
+def test_a_cache_from_another_nerf_run_is_refused(paint_world, tmp_path, capsys):
+  out = tmp_path / "moved"
+  assert cli.main(["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
+                   *paint_world["styles"], "--out", str(out)] + PAINT_ARGS
+                  + ["--steps", "2"]) == 0
+  cache_path = os.path.join(str(out), paint.CACHE_FILE)
+  with np.load(cache_path) as saved:
+    cache = {k: saved[k] for k in saved.files}
+  cache["nerf_run"] = np.array("/elsewhere/nerf@6")
+  with open(cache_path, "wb") as f:
+    np.savez(f, **cache)
+  capsys.readouterr()
+  before = {n: os.path.getmtime(os.path.join(str(out), n)) for n in os.listdir(out)}
+  assert cli.main(["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
+                   *paint_world["styles"], "--out", str(out)] + PAINT_ARGS) == 2
+  err = capsys.readouterr().err
+  assert "made from the NeRF run /elsewhere/nerf@6" in err and err.count("\n") == 1
+  assert msnerf_jax.load_run(str(out)).step == 2
+  assert {n: os.path.getmtime(os.path.join(str(out), n)) for n in os.listdir(out)
+          if n in before and n != "trainer.lock"} == {n: t for n, t in before.items()
+                                                      if n != "trainer.lock"}
+
+
+# ----------------------------------------------------------------------------- a new style
+
+
+def test_each_vertex_takes_its_colour_from_one_key_view_never_an_average():
+  from msnerf_jax.train.paint_add import lift_key_views  # pylint: disable=g-import-not-at-top
+  index = np.arange(8, dtype=np.int32).reshape(2, 2, 2)  # one cell, 8 painted vertices
+  point = np.zeros((1, 3), np.float32)  # the cell's centre: 1/8 to each vertex
+  cache = {"points": np.stack([point, point]), "weights": np.array([[0.9], [0.3]], np.float32),
+           "pixel": np.zeros((2, 1), np.int32)}
+  red, blue = np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+  out = lift_key_views(cache, [0, 1], np.stack([red, blue]), index, 8, 1.0)
+  np.testing.assert_allclose(out["colours"][:8], np.repeat(red, 8, 0))  # the heavier view's
+  assert out["seen"][:8].all() and not out["seen"][8]
+  out = lift_key_views(cache, [1, 0], np.stack([blue, red]), index, 8, 1.0)  # order-free
+  np.testing.assert_allclose(out["colours"][:8], np.repeat(red, 8, 0))
+
+
+def test_vertices_no_key_view_sees_are_filled_from_painted_neighbours():
+  from msnerf_jax.train.paint_add import fill_from_neighbours  # pylint: disable=g-import-not-at-top
+  index = np.full((4, 4, 4), 3, np.int32)  # three painted vertices in a row, V = 3
+  index[1, 1, 0], index[1, 1, 1], index[1, 1, 2] = 0, 1, 2
+  colours = np.array([[1.0, 0, 0], [0.5, 0.5, 0.5], [0, 0, 1.0], [0.5, 0.5, 0.5]])
+  seen = np.array([True, False, True, False])
+  out = fill_from_neighbours(colours, seen, index)
+  np.testing.assert_allclose(out[1], [0.5, 0.0, 0.5])  # the mean of its two neighbours
+  np.testing.assert_allclose(out[[0, 2]], colours[[0, 2]])
+
+
+def test_a_new_style_joins_the_run_and_leaves_the_others_bit_identical(paint_world, tmp_path):
+  import shutil  # pylint: disable=g-import-not-at-top
+  from conftest import fake_decoder  # pylint: disable=g-import-not-at-top
+  run_dir = str(tmp_path / "painted")
+  shutil.copytree(paint_world["run"], run_dir)
+  before = msnerf_jax.load_run(run_dir)
+  green = write_style(tmp_path / "green.png", (40, 200, 40))
+  decoder = fake_decoder(tmp_path / "decoder")
+  assert cli.main(["paint", "add", "--run", run_dir, "--style", green, "--decoder", decoder,
+                   "--key-views", "0", "2", "--polish-steps", "2", "--no-progress"]) == 0
+  after = msnerf_jax.load_run(run_dir)
+  assert after.record["styles"] == ["red", "blue", "green"] and after.step == before.step + 1
+  colours = after.params["paint"]["colours"]
+  np.testing.assert_array_equal(colours[:2], before.params["paint"]["colours"])
+  assert colours.shape[0] == 3 and np.any(colours[2, :-1] != 0)
+  for a, b in zip(leaves(after.params["nerf"]), leaves(before.params["nerf"])):
+    np.testing.assert_array_equal(a, b)
+  table, _, render = style_rendering(after, paint_world["scene"])
+  assert list(table) == ["red", "blue", "green", "original"]
+  assert render(0, [table["green"]]).shape == (1, 24, 24, 3)
+  assert painted_kind.style_images(after).shape[0] == 3
+
+
+@pytest.mark.parametrize("bad", ["range", "same name"])
+def test_a_bad_new_style_gets_one_line_and_writes_nothing(paint_world, tmp_path, capsys, bad):
+  import shutil  # pylint: disable=g-import-not-at-top
+  from conftest import fake_decoder  # pylint: disable=g-import-not-at-top
+  run_dir = str(tmp_path / "painted")
+  shutil.copytree(paint_world["run"], run_dir)
+  decoder = fake_decoder(tmp_path / "decoder")
+  style = paint_world["styles"][0] if bad == "same name" else write_style(
+      tmp_path / "green.png", (40, 200, 40))
+  stamp = {n: os.path.getmtime(os.path.join(run_dir, n)) for n in os.listdir(run_dir)}
+  assert cli.main(["paint", "add", "--run", run_dir, "--style", style, "--decoder", decoder,
+                   "--key-views", "0", "9", "--no-progress"]) == 2
+  err = capsys.readouterr().err.strip().splitlines()
+  assert len(err) == 1 and err[0].startswith("msnerf: error: ")
+  assert ("out of range" if bad == "range" else "already has a style named 'red'") in err[0]
+  assert {n: os.path.getmtime(os.path.join(run_dir, n)) for n in os.listdir(run_dir)} == stamp
+
+
+def test_the_viewer_shows_painted_styles_and_their_blends(paint_world):
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.viewer import probe as probe_lib
+  from msnerf_jax.viewer import server as server_lib
+  from msnerf_jax.data.images import to_uint8
+  from test_viewer import _assert_same, _full_frame
+  run = msnerf_jax.load_run(paint_world["run"])
+  viewer = server_lib.open_viewer(run, port=0, log=lambda _: None)
+  probe = probe_lib.Probe(viewer.url)
+  try:
+    frames = viewer.frames
+    assert list(frames.styles) == ["red", "blue", "original"]
+    view = frames.start_request().view
+    probe.camera(view.wxyz, view.position, view.fov, 240, 240)
+    probe.wait_for(lambda: "blend" in probe.components, 30, "controls")
+    assert "upload a style image" not in probe.components  # painted styles only
+    render = painted_kind.style_renderer(run, frames.scene)
+    camera = frames.camera(view, "full")
+    _assert_same(_full_frame(probe, viewer, 240, 240, 0),
+                 to_uint8(render(camera, [frames.styles["red"]])[0]))
+    n = probe.frame_count()
+    probe.set("blend", 0.5)
+    half = 0.5 * frames.styles["red"] + 0.5 * frames.styles["blue"]
+    _assert_same(_full_frame(probe, viewer, 240, 240, n), to_uint8(render(camera, [half])[0]))
+  finally:
+    probe.close()
+    viewer.stop()
