@@ -4,7 +4,7 @@ Loading a run and its scene (`load_run`, `scene_of`), its field and sampling con
 (`field_of`), rendering rays and images of any run kind in any style vectors
 (`render_rays`, `render_image`, `render_run_rays`), style vectors and blends
 (`style_vectors` of a multi-style run, `style_vector_of` any picture, `blend`), painted colour
-fields (`view_samples` caches a view's samples, `cached_render` renders a colour field from
+fields (`paint` paints styles on a NeRF run, `view_samples` caches a view's samples, `cached_render` renders a colour field from
 them, `deferred_grad`, the style losses `painting_losses`), the configs, and the primitives
 (rays, sampling, volume rendering). Everything here is a pure function of its arguments or a frozen dataclass;
 `render_rays` jits and vmaps (over style vectors, for one).
@@ -30,6 +30,7 @@ from msnerf_jax.models.painted_field import PaintedField
 from msnerf_jax.kinds.painted import render_painted
 from msnerf_jax.nerf.sample_cache import cached_render, deferred_grad, pack_views, view_samples
 from msnerf_jax.style.painting_loss import nnfm, painting_losses, style_target
+from msnerf_jax.train.paint import train as paint
 from msnerf_jax.nerf.rays import get_rays, ray_bundle
 from msnerf_jax.nerf.render import (draw_randomness, flat_rays, render_feature_rays,
                                     render_image, render_rays)
@@ -74,7 +75,7 @@ __all__ = [
     "draw_randomness", "flat_rays", "NerfField", "MultistyleField", "FeatureFieldFn",
     "SAMPLERS", "sampler_of",
     # painted colour fields: cached sample lists, their render, the style losses
-    "PaintedField", "render_painted", "view_samples", "pack_views", "cached_render",
+    "paint", "PaintedField", "render_painted", "view_samples", "pack_views", "cached_render",
     "deferred_grad", "painting_losses", "nnfm", "style_target",
     # styles
     "style_vectors", "style_vector_of", "style_vector", "blend", "adain",

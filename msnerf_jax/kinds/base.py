@@ -34,6 +34,9 @@ class RunKind:
       kinds that paint (paints_any_style), else None.
     paints_any_style: it paints any style picture at render time (needs a decoder), rather
       than the styles it was trained on.
+    check_params: (params, config, record, where) -> None, UserError naming `where` for
+      params that do not fit the run: for kinds whose shapes depend on the run folder as
+      well as on the config (a painted run's style count), beside init_params' check.
   """
   name: str
   config_class: type
@@ -46,3 +49,4 @@ class RunKind:
   style_table: Optional[Callable[[Any, Any], Tuple[Dict[str, np.ndarray], Any]]] = None
   style_renderer: Optional[Callable[..., StyleRenderer]] = None
   paints_any_style: bool = False
+  check_params: Optional[Callable[[Any, Any, Dict[str, Any], str], None]] = None

@@ -14,7 +14,7 @@ from msnerf_jax.data.images import read_npy
 from msnerf_jax.data.stylized import ORIGINAL
 from msnerf_jax.kinds import views
 from msnerf_jax.kinds.base import RunKind
-from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from msnerf_jax.models.painted_field import PaintedField
 from msnerf_jax.nerf import render as render_lib
 
@@ -35,6 +35,28 @@ def style_images(run) -> np.ndarray:
   """[M, S, S, 3] the pictures a painted run's styles were painted from."""
   s = run.config.style_size
   return read_npy(os.path.join(run.run_dir, STYLE_IMAGES), (len(run.record["styles"]), s, s, 3))
+
+
+def check_params(params, config: PaintConfig, record, where: str) -> None:
+  """UserError naming `where` unless a painted run's params are {"nerf": its NeRF config's
+  params, "paint": {"colours" [M, V + 1, 3] for run.json's M styles, "index" [R, R, R]
+  int32 with rows up to V}}."""
+  import jax  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs as runs_lib  # pylint: disable=g-import-not-at-top
+  if not isinstance(params, dict) or set(params) != {"nerf", "paint"} or set(
+      params["paint"]) != {"colours", "index"}:
+    raise UserError(f"{where}: not the params of a painted run")
+  runs_lib.check_params(params["nerf"], jax.eval_shape(
+      lambda: init_nerf_params(config.nerf, jax.random.PRNGKey(0))), where)
+  colours, index = params["paint"]["colours"], params["paint"]["index"]
+  r, m = config.resolution, len(record.get("styles", []))
+  if np.shape(index) != (r, r, r) or np.shape(colours)[2:] != (3,) or np.ndim(colours) != 3:
+    raise UserError(f"{where}: paint index {np.shape(index)} and colours "
+                    f"{np.shape(colours)}, its config expects ({r}, {r}, {r}) and (M, V + 1, 3)")
+  if np.shape(colours)[0] < m or int(np.max(index)) >= np.shape(colours)[1]:
+    raise UserError(f"{where}: colours for {np.shape(colours)[0]} styles and "
+                    f"{np.shape(colours)[1]} rows; run.json names {m} styles and the index "
+                    f"reaches row {int(np.max(index))}")
 
 
 def render_painted(scene, params, config: PaintConfig, camera, chunk: Optional[int] = None
@@ -95,4 +117,5 @@ KIND = RunKind(
     nerf_config=lambda config: config.nerf,
     style_table=style_table,
     style_renderer=style_renderer,
+    check_params=check_params,
 )

@@ -152,8 +152,10 @@ def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
   finally:
     checkpoints.close()
   params = _to_numpy(restored["params"])
-  check_params(params, expected_params(kind, config),
-               os.path.join(run_dir, CHECKPOINT_DIR, str(step)))
+  where = os.path.join(run_dir, CHECKPOINT_DIR, str(step))
+  check_params(params, expected_params(kind, config), where)
+  if get_kind(kind).check_params is not None:
+    get_kind(kind).check_params(params, config, record, where)
   return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
              record=record)
 
