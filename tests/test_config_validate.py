@@ -7,6 +7,7 @@ import dataclasses
 import pytest
 
 from msnerf_jax.core.config import (AdainConfig, DataConfig, FeatureConfig, MultistyleConfig,
+                                    PaintConfig,
                                     NerfConfig)
 from msnerf_jax.core.errors import UserError
 
@@ -107,6 +108,24 @@ BAD = [
     (FeatureConfig, {}, "lr_decay_steps", 0, "--lr-decay-steps 0"),
     (FeatureConfig, {}, "checkpoint_every", 0, "--checkpoint-every 0"),
     (FeatureConfig, {}, "keep_checkpoints", 0, "--keep-checkpoints 0"),
+    (PaintConfig, {}, "scene_box", -1.0, "--scene-box -1.0"),
+    (PaintConfig, {}, "resolution", 1, "--resolution 1"),
+    (PaintConfig, {}, "style_loss", "gram", "--style-loss gram"),
+    (PaintConfig, {}, "style_weight", -1.0, "--style-weight -1.0"),
+    (PaintConfig, {}, "content_weight", float("nan"), "--content-weight nan"),
+    (PaintConfig, {}, "tv_weight", float("inf"), "--tv-weight inf"),
+    (PaintConfig, {}, "style_size", 8, "--style-size 8"),
+    (PaintConfig, {}, "init_steps", -1, "--init-steps -1"),
+    (PaintConfig, {}, "steps", 0, "--steps 0"),
+    (PaintConfig, {}, "views_per_style", 0, "--views-per-style 0"),
+    (PaintConfig, {}, "crop", 16, "--crop 16"),
+    (PaintConfig, {}, "cache_threshold", 1.0, "--cache-threshold 1.0"),
+    (PaintConfig, {}, "top_k", 0, "--top-k 0"),
+    (PaintConfig, {}, "lr_init", 0.0, "--lr 0.0"),
+    (PaintConfig, {}, "lr_final", -1.0, "--lr-final -1.0"),
+    (PaintConfig, {}, "lr_decay_steps", 0, "--lr-decay-steps 0"),
+    (PaintConfig, {}, "checkpoint_every", 0, "--checkpoint-every 0"),
+    (PaintConfig, {}, "keep_checkpoints", 0, "--keep-checkpoints 0"),
 ]
 
 # Fields any value of their type suits (or checked where the value is used, named there).
@@ -116,6 +135,7 @@ FREE = {
     AdainConfig: {"seed", "encoder", "init_from", "content_features"},  # run folders: loaders.
     MultistyleConfig: {"nerf", "density_aware", "normalize_styles", "seed"},
     FeatureConfig: {"nerf", "seed"},
+    PaintConfig: {"nerf", "seed", "colour_transfer"},
 }
 
 

@@ -23,6 +23,8 @@ _HELP = {
     "ms_batch_rays": "multi-style pixels per step (each supervised in every style)",
     "features_steps": "feature-field training steps (0 = no feature field)",
     "features_batch_cells": "feature-field relu4_1 cells per step",
+    "paint_steps": "painted colour fields: training steps (0 = none; `msnerf paint train`'s "
+                   "default is 1000)",
     "frames": "frames of the videos (0 = the scene's whole render path)",
     "fps": "frames per second of the videos",
     "grid_views": "views (columns) of the grid",

@@ -6,6 +6,8 @@ from typing import Any, Callable, Dict, Optional, Tuple
 
 import numpy as np
 
+from msnerf_jax.core.errors import UserError
+
 # (camera: a view index, c2w [3, 4] or cameras.Camera; K style vectors [1024]) ->
 # K images [K, H, W, 3] float32 in [0, 1].
 StyleRenderer = Callable[[Any, Any], np.ndarray]
@@ -50,3 +52,17 @@ class RunKind:
   style_renderer: Optional[Callable[..., StyleRenderer]] = None
   paints_any_style: bool = False
   check_params: Optional[Callable[[Any, Any, Dict[str, Any], str], None]] = None
+
+
+def check_param_shapes(params: Any, expected: Any, where: str) -> None:
+  """UserError naming `where` unless params have the tree and shapes of `expected`."""
+  import jax  # pylint: disable=g-import-not-at-top
+  if expected is None:
+    return
+  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(params):
+    raise UserError(f"{where}: parameters of another architecture than its run.json says")
+  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
+                               jax.tree_util.tree_leaves(params)):
+    if tuple(want.shape) != tuple(np.shape(got)):
+      raise UserError(f"{where}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
+                      f"its config expects {tuple(want.shape)} (another architecture)")

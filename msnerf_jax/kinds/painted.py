@@ -13,7 +13,7 @@ from msnerf_jax.core.files import write_npy
 from msnerf_jax.data.images import read_npy
 from msnerf_jax.data.stylized import ORIGINAL
 from msnerf_jax.kinds import views
-from msnerf_jax.kinds.base import RunKind
+from msnerf_jax.kinds.base import RunKind, check_param_shapes
 from msnerf_jax.models.nerf import NerfField, init_nerf_params
 from msnerf_jax.models.painted_field import PaintedField
 from msnerf_jax.nerf import render as render_lib
@@ -42,11 +42,10 @@ def check_params(params, config: PaintConfig, record, where: str) -> None:
   params, "paint": {"colours" [M, V + 1, 3] for run.json's M styles, "index" [R, R, R]
   int32 with rows up to V}}."""
   import jax  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.kinds import runs as runs_lib  # pylint: disable=g-import-not-at-top
   if not isinstance(params, dict) or set(params) != {"nerf", "paint"} or set(
       params["paint"]) != {"colours", "index"}:
     raise UserError(f"{where}: not the params of a painted run")
-  runs_lib.check_params(params["nerf"], jax.eval_shape(
+  check_param_shapes(params["nerf"], jax.eval_shape(
       lambda: init_nerf_params(config.nerf, jax.random.PRNGKey(0))), where)
   colours, index = params["paint"]["colours"], params["paint"]["index"]
   r, m = config.resolution, len(record.get("styles", []))

@@ -17,6 +17,7 @@ from msnerf_jax.core.files import write_json
 from msnerf_jax.data.scene import drop_legacy_data_keys, load_scene
 from msnerf_jax.data.stylized import style_views
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.kinds.base import check_param_shapes
 from msnerf_jax.kinds.registry import KINDS, get_kind
 
 RUN_FILE = "run.json"
@@ -153,7 +154,7 @@ def load_run(run_dir: str, kind: Optional[str] = None) -> Run:
     checkpoints.close()
   params = _to_numpy(restored["params"])
   where = os.path.join(run_dir, CHECKPOINT_DIR, str(step))
-  check_params(params, expected_params(kind, config), where)
+  check_param_shapes(params, expected_params(kind, config), where)
   if get_kind(kind).check_params is not None:
     get_kind(kind).check_params(params, config, record, where)
   return Run(run_dir=run_dir, kind=kind, config=config, params=params, step=int(step),
@@ -190,20 +191,6 @@ def load_run_and_scene(run_dir: str, kind: str):
   """(run, scene) of a run folder of the given kind, the scene reloaded as it was trained."""
   run = load_run(run_dir, kind)
   return run, scene_of(run)[0]
-
-
-def check_params(params: Any, expected: Any, where: str) -> None:
-  """UserError naming `where` unless params have the tree and shapes of `expected`."""
-  import jax  # pylint: disable=g-import-not-at-top
-  if expected is None:
-    return
-  if jax.tree_util.tree_structure(expected) != jax.tree_util.tree_structure(params):
-    raise UserError(f"{where}: parameters of another architecture than its run.json says")
-  for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(expected),
-                               jax.tree_util.tree_leaves(params)):
-    if tuple(want.shape) != tuple(np.shape(got)):
-      raise UserError(f"{where}: {jax.tree_util.keystr(path)} is {tuple(np.shape(got))}, "
-                      f"its config expects {tuple(want.shape)} (another architecture)")
 
 
 def _to_numpy(tree):

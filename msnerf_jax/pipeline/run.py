@@ -9,6 +9,7 @@ Each stage writes one subfolder of the output folder:
   stylized/    the stylized dataset (every view in every style, plus the original)
   multistyle/  the multi-style NeRF run (the paper's model)
   features/    the feature-field run (AdaIN in 3D; skipped with features_steps 0)
+  painted/     the painted run (colour fields per style; only with paint_steps > 0)
   renders/     styles.mp4/.gif (all styles side by side along the orbit), morph.mp4/.gif (one
                orbit whose style morphs through the styles), features.mp4/.gif (as styles.mp4,
                painted by the feature field) and grid.png (styles x views, the paper's model and
@@ -118,6 +119,9 @@ def format_summary(summary: Dict[str, Any]) -> str:
   if summary["settings"].get("features_steps"):
     lines.append(f"paint it in any style: msnerf render --run "
                  f"{os.path.join(summary['out'], 'features')} --style IMG --out VIDEO")
+  if summary["settings"].get("paint_steps"):
+    lines.append(f"its painted styles (strokes in 3D): msnerf render --run "
+                 f"{os.path.join(summary['out'], 'painted')} --out VIDEO")
   lines.append(f"look around it in the browser: msnerf view --run "
                f"{os.path.join(summary['out'], 'multistyle')}")
   return "\n".join(lines) + "\n"

@@ -30,6 +30,9 @@ class Settings:
   ms_batch_rays: int = 1024
   features_steps: int = 2000  # 0 = no feature field.
   features_batch_cells: int = 512
+  # Off by default: on the demo's 2-core CPU budget it would add minutes (see
+  # docs/results/painted.md for what 1000 steps cost on lego).
+  paint_steps: int = 0  # 0 = no painted run.
   frames: int = 0  # frames of the videos (0 = the scene's whole render path).
   fps: int = 12
   grid_views: int = 4
@@ -62,6 +65,12 @@ def feature_config(s: Settings) -> config_lib.FeatureConfig:
                                   checkpoint_every=max(1, min(500, s.features_steps)))
 
 
+def paint_config(s: Settings) -> config_lib.PaintConfig:
+  return config_lib.PaintConfig(steps=s.paint_steps, init_steps=min(100, s.paint_steps // 10),
+                                lr_decay_steps=max(1, s.paint_steps), seed=s.seed,
+                                checkpoint_every=max(1, min(250, s.paint_steps)))
+
+
 def render_files(s: Settings) -> Tuple[str, ...]:
   """The files the renders stage writes."""
   return (("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
@@ -89,7 +98,7 @@ def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[s
     if getattr(s, name) < 1:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 1")
   for name in ("nerf_steps", "nerf_batch_rays", "frames", "chunk", "downscale",
-               "features_steps"):
+               "features_steps", "paint_steps"):
     if getattr(s, name) < 0:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 0")
   if s.adain_size < 16 or s.adain_size % 8:

@@ -18,11 +18,13 @@ from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.pipeline import renders
 from msnerf_jax.pipeline.settings import (Settings, adain_config, feature_config,
-                                          multistyle_config, nerf_config, render_files)
+                                          multistyle_config, nerf_config, paint_config,
+                                          render_files)
 from msnerf_jax.train import adain as train_adain
 from msnerf_jax.train import features as train_features
 from msnerf_jax.train import multistyle as train_multistyle
 from msnerf_jax.train import nerf as train_nerf
+from msnerf_jax.train import paint as train_paint
 
 
 @dataclasses.dataclass
@@ -204,6 +206,24 @@ def _features_off(c: Context):
   return None if c.settings.features_steps else ("off", "off (--features-steps 0)")
 
 
+# ----------------------------------------------------------------------------- painted
+
+
+def _painted_key(c: Context):
+  return {**_base(c), "config": config_lib.to_dict(paint_config(c.settings)),
+          "styles": c.styles, "upstream": _nerf_key(c)}
+
+
+def _run_painted(c: Context):
+  train_paint.train(paint_config(c.settings), c.path("nerf"), c.styles, c.path("painted"),
+                    progress=c.progress)
+  return [c.path("painted")]
+
+
+def _painted_off(c: Context):
+  return None if c.settings.paint_steps else ("off", "off (--paint-steps 0)")
+
+
 # ----------------------------------------------------------------------------- renders
 
 
@@ -238,6 +258,8 @@ STAGES: Sequence[Stage] = (
           _run_multistyle, _folder("multistyle")),
     Stage("features", _features_key, _features_done, _run_features, _folder("features"),
           _features_off),
+    Stage("painted", _painted_key, _trained("painted", lambda c: c.settings.paint_steps),
+          _run_painted, _folder("painted"), _painted_off),
     Stage("renders", _renders_key, lambda c: all(map(os.path.exists, _render_outputs(c))),
           lambda c: renders.run_renders(c.out, c.styles, c.settings, c.progress),
           _render_outputs),
