@@ -24,7 +24,7 @@ from msnerf_jax.models.painted_field import PaintedField, trilinear
 from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.train import nerf, paint
+from msnerf_jax.train import nerf, paint, paint_data
 
 from conftest import write_blender_scene
 from test_fast_trunk import TINY_FAST
@@ -306,7 +306,7 @@ def test_a_cache_from_another_nerf_run_is_refused(paint_world, tmp_path, capsys)
   assert cli.main(["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
                    *paint_world["styles"], "--out", str(out)] + PAINT_ARGS
                   + ["--steps", "2"]) == 0
-  cache_path = os.path.join(str(out), paint.CACHE_FILE)
+  cache_path = os.path.join(str(out), paint_data.CACHE_FILE)
   with np.load(cache_path) as saved:
     cache = {k: saved[k] for k in saved.files}
   cache["nerf_run"] = np.array("/elsewhere/nerf@6")
@@ -420,3 +420,25 @@ def test_the_viewer_shows_painted_styles_and_their_blends(paint_world):
   finally:
     probe.close()
     viewer.stop()
+
+
+def test_a_crop_renders_from_its_rows_samples_as_the_whole_view_cropped(paint_world):
+  run = msnerf_jax.load_run(paint_world["run"])
+  scene = paint_world["scene"]
+  config = dataclasses.replace(run.config, crop=16)
+  nerf_run = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  cache = paint_data.read_cache(os.path.join(paint_world["run"], paint_data.CACHE_FILE),
+                           paint_data.cache_source(nerf_run))
+  styles = painted_kind.style_images(run)
+  consts = paint_data.constants(scene, cache, styles, config)
+  band = consts.pop("band")
+  batch = {"view": jnp.array([0, 3, 1]), "style": jnp.array([1, 0, 1]),
+           "top": jnp.array([0, 8, 5]), "left": jnp.array([8, 0, 3])}
+  paint_params = jax.tree_util.tree_map(jnp.asarray, run.params["paint"])
+  crops = paint.render_crops(paint_params, consts, batch, 16, band, config.scene_box)
+  whole = paint.render_pairs(paint_params, consts["cache"], batch["view"], batch["style"],
+                             config.scene_box, consts["background"]).reshape(-1, 24, 24, 3)
+  for i in range(3):
+    top, left = int(batch["top"][i]), int(batch["left"][i])
+    np.testing.assert_allclose(crops[i], whole[i, top:top + 16, left:left + 16], atol=1e-6)
+  assert band < cache["weights"].shape[1]  # a band is less than a whole view's samples

@@ -24,7 +24,7 @@ def main(argv=None):
   from msnerf_jax.kinds.views import render_view
   from msnerf_jax.models.painted_field import trilinear
   from msnerf_jax.nerf import sample_cache
-  from msnerf_jax.train.paint import CACHE_FILE, cache_source, read_cache
+  from msnerf_jax.train.paint_data import CACHE_FILE, cache_source, read_cache
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument("--run", required=True)
   parser.add_argument("--repeats", type=int, default=5)

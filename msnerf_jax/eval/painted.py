@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import video
@@ -34,6 +35,9 @@ from msnerf_jax.style import adain as adain_lib
 COLUMNS = ("method", "style", "rmse_k1", "lpips_k1", "rmse_k7", "lpips_k7", "style_adain",
            "style_gram", "content", "distinct")
 BASELINE = "adain-per-frame"
+# Consistency columns also compared above the metric's floor (the photo-real NeRF's own
+# figure): (painted - floor) / (per-frame AdaIN - floor).
+CONSISTENCY = ("rmse_k1", "lpips_k1")
 
 
 def content_loss(encoder, frames: Sequence[np.ndarray], photos: Sequence[np.ndarray]) -> float:
@@ -65,15 +69,16 @@ def random_texture(run, seed: int = 0) -> Dict[str, Any]:
 
 
 def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int = 40,
-                     scale: int = 1, chunk: Optional[int] = None, progress: bool = True
-                     ) -> Dict[str, Any]:
+                     scale: int = 1, chunk: Optional[int] = None, progress: bool = True,
+                     styles: Optional[Sequence[str]] = None) -> Dict[str, Any]:
   """Evaluates a painted run and per-frame AdaIN (decoder `decoder_dir`, each frame
-  stylized at `scale` times its size, as `msnerf stylize-scene --stylize-scale`) in every
-  painted style along `frames` cameras of the scene's render path; writes results.md/.csv/
-  .json and frames.png (rows: style x method, 4 frames) in out_dir.
+  stylized at `scale` times its size, as `msnerf stylize-scene --stylize-scale`) in its
+  painted `styles` (default: all) along `frames` cameras of the scene's render path; writes
+  results.md/.csv/.json and frames.png (rows: style x method, 4 frames) in out_dir.
 
-  Returns {"rows": [...], "ratios": {style: {column: painted / per-frame}}, "files",
-  "seconds"}.
+  Returns {"rows": [...], "ratios": {style: {column: painted / per-frame, and
+  "COLUMN_over_floor" for the consistency columns: (painted - floor) / (per-frame - floor),
+  the floor being the photo-real NeRF's figure}}, "files", "seconds"}.
   """
   t0 = time.time()
   run = load_run(run_dir, "painted")
@@ -82,14 +87,19 @@ def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int =
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
   poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
                              .round().astype(int)]
-  names = list(run.record["styles"])
+  files_of = dict(zip(run.record["styles"], run.record["style_files"]))
+  names = list(styles) if styles else list(run.record["styles"])
+  for name in names:
+    if name not in files_of:
+      raise UserError(f"style {name!r}: not a painted style of {run_dir} "
+                      f"({', '.join(files_of)})")
   base = [{**render_view(scene, run.params["nerf"], run.config.nerf, c2w, chunk), "pose": c2w}
           for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
   by_name, _ = painted_frames(run, scene, base, run.record["nerf_run"], chunk, progress)
   painted = [by_name[n] for n in names]
   noise = random_texture(run)
   texture = [render_painted(scene, noise, run.config, c2w, chunk)["rgb"][0] for c2w in poses]
-  pictures = [images_lib.read_image(p, max_side=1024) for p in run.record["style_files"]]
+  pictures = [images_lib.read_image(files_of[n], max_side=1024) for n in names]
   per_frame = [per_frame_adain(decoder, encoder, base, picture, 1.0, scene.white_background,
                                scale) for picture in progress_bar(
                                    pictures, desc="per-frame AdaIN", disable=not progress,
@@ -112,7 +122,10 @@ def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int =
                  **score(frames_, depths, accs, poses, scene.K, scene.ndc, photos[0], encoder,
                          lpips_params), "content": content_loss(encoder, frames_, photos),
                  "distinct": float("nan")})
-  ratios = {name: {c: rows[2 * m][c] / rows[2 * m + 1][c] for c in COLUMNS[2:]}
+  floor = rows[2 * len(names)]  # the photo-real NeRF's own figures
+  ratios = {name: {**{c: rows[2 * m][c] / rows[2 * m + 1][c] for c in COLUMNS[2:]},
+                   **{f"{c}_over_floor": (rows[2 * m][c] - floor[c])
+                      / (rows[2 * m + 1][c] - floor[c]) for c in CONSISTENCY}}
             for m, name in enumerate(names)}
   os.makedirs(out_dir, exist_ok=True)
   files = write_tables(rows, out_dir, COLUMNS)
@@ -123,4 +136,5 @@ def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int =
 def ratio_table(ratios: Dict[str, Dict[str, float]]) -> List[str]:
   """Markdown lines of painted / per-frame AdaIN per style and column."""
   rows = [{"style": name, **r} for name, r in ratios.items()]
-  return markdown_table(rows, ("style",) + COLUMNS[2:])
+  return markdown_table(rows, ("style",) + COLUMNS[2:] + tuple(f"{c}_over_floor"
+                                                              for c in CONSISTENCY))

@@ -20,25 +20,22 @@ from msnerf_jax.core import config as config_lib
 from msnerf_jax.core import distributed, run_lock
 from msnerf_jax.core.config import PaintConfig
 from msnerf_jax.core.errors import UserError
-from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.parallel import DataParallel, data_parallel
-from msnerf_jax.core.progress import progress_bar
-from msnerf_jax.data.images import cover_crop, read_style_image
 from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.kinds.painted import NAME as KIND, save_style_images
-from msnerf_jax.models import vgg
-from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.models.painted_field import init_painted_params, paint_index, trilinear
+from msnerf_jax.models.painted_field import init_painted_params, trilinear
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.style.transfer import apply_colour_map, colour_map
+from msnerf_jax.style.transfer import apply_colour_map
 from msnerf_jax.train import loop as loop_lib
+from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, index_of,
+                                         load_or_build_cache, read_cache, read_styles,
+                                         style_name)
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
 
-FROZEN, TRAINED = "nerf", "paint"  # params {"nerf": the NeRF run's, "paint": {"grids"}}.
-CACHE_FILE = "sample_cache.npz"
+FROZEN, TRAINED = "nerf", "paint"  # params {"nerf": the NeRF run's, "paint": {"colours", "index"}}.
 
 
 # ----------------------------------------------------------------------------- state
@@ -93,24 +90,53 @@ def photo_targets(consts, views: jnp.ndarray, styles: jnp.ndarray, white_backgro
   return moved * acc + (1.0 - acc)
 
 
+def render_crops(paint_params, consts, batch, crop: int, band: int, bound: float
+                 ) -> jnp.ndarray:
+  """The crops [B, crop, crop, 3] of batch's pairs ("view", "style", "top", "left"), each
+  rendered from the samples of its rows alone: the cached lists are sorted by pixel, so the
+  `crop` rows from "top" are one slice of at most `band` samples (consts["row_start"]
+  [N, H + 1] says where each row's samples start)."""
+  cache, width = consts["cache"], consts["photos"].shape[2]
+
+  def one(view, style, top, left):
+    start = consts["row_start"][view, top]
+    piece = lambda x: jax.lax.dynamic_slice_in_dim(x, start, band)
+    pixel = piece(cache["pixel"][view]) - top * width
+    inside = (pixel >= 0) & (pixel < crop * width)
+    lists = {"points": piece(cache["points"][view]),
+             "weights": jnp.where(inside, piece(cache["weights"][view]), 0.0),
+             "pixel": jnp.clip(pixel, 0, crop * width - 1),
+             "accumulation": jax.lax.dynamic_slice_in_dim(cache["accumulation"][view],
+                                                          top * width, crop * width)}
+    table = paint_params["colours"][style][None]
+    colour = lambda points: jax.nn.sigmoid(trilinear(table, paint_params["index"], points,
+                                                     bound))[0]
+    rows = sample_cache.cached_render(colour, lists, consts["background"])
+    return jax.lax.dynamic_slice(rows.reshape(crop, width, 3), (0, left, 0), (crop, crop, 3))
+  return jax.vmap(one)(batch["view"], batch["style"], batch["top"], batch["left"])
+
+
 def loss_fn(colours, index, batch, consts, config: PaintConfig, white_background: bool,
-            init: bool):
+            init: bool, band: int = 0):
   """The loss of a batch of (view, style) pairs and its terms (means over the pairs): with
   `init` (the first init_steps) the MSE to photo_targets, else style_weight x (NNFM or
   AdaIN) + content_weight x content + tv_weight x total variation
-  (painting_loss.painting_losses). The loss is the sum over the pairs divided by
-  views_per_style: each style's colours get the gradient of the mean over their own pairs
-  alone, whatever the other styles and the devices are."""
+  (painting_loss.painting_losses). With config.crop, each pair is its crop (render_crops,
+  `band` samples). The loss is the sum over the pairs divided by views_per_style: each
+  style's colours get the gradient of the mean over their own pairs alone, whatever the
+  other styles and the devices are."""
   views, styles = batch["view"], batch["style"]
   shape = consts["photos"].shape[1:]
-  renders = render_pairs({"colours": colours, "index": index}, consts["cache"], views, styles,
-                         config.scene_box, consts["background"]).reshape(-1, *shape)
+  paint_params = {"colours": colours, "index": index}
   photos = jax.lax.stop_gradient(photo_targets(consts, views, styles, white_background))
-  if config.crop and not init:
+  if config.crop:
+    renders = render_crops(paint_params, consts, batch, config.crop, band, config.scene_box)
     crop = lambda x, top, left: jax.lax.dynamic_slice(x, (top, left, 0),
                                                       (config.crop, config.crop, 3))
-    renders = jax.vmap(crop)(renders, batch["top"], batch["left"])
     photos = jax.vmap(crop)(photos, batch["top"], batch["left"])
+  else:
+    renders = render_pairs(paint_params, consts["cache"], views, styles, config.scene_box,
+                           consts["background"]).reshape(-1, *shape)
   terms = {"mse": jnp.mean(jnp.square(renders - photos), (1, 2, 3))}
   if init:  # (the style terms as zeros: both programs give the same statistics)
     per_pair = terms["mse"]
@@ -125,14 +151,15 @@ def loss_fn(colours, index, batch, consts, config: PaintConfig, white_background
 
 
 def train_step(state: state_lib.TrainState, batch, consts, *, config: PaintConfig,
-               white_background: bool, init: bool, axis_name: Optional[str] = None):
+               white_background: bool, init: bool, band: int = 0,
+               axis_name: Optional[str] = None):
   """One Adam step on the colours; the NeRF and the index come out bit-identical (passed
   through). The devices' gradients are summed (each holds other pairs: loss_fn's sum), so
   a step does not depend on how the pairs are split."""
   params = state.params
   paint = params[TRAINED]
   grads, stats = jax.grad(loss_fn, has_aux=True)(paint["colours"], paint["index"], batch,
-                                                 consts, config, white_background, init)
+                                                 consts, config, white_background, init, band)
   if axis_name is not None:
     grads = jax.lax.psum(grads, axis_name)
     stats = jax.lax.pmean(stats, axis_name)
@@ -148,9 +175,10 @@ def compile_train_step(config: PaintConfig, consts, parallel: DataParallel,
   """The placed (state, batch) -> (state, stats) step: two compiled programs, the init fit
   and the style loss, chosen on the host by the batch's "init" flag (a lax.cond between them
   measured 2x slower on the CPU)."""
+  band = consts.pop("band", 0)
   steps = {init: parallel.compile(functools.partial(
-      train_step, config=config, white_background=white_background, init=init), (consts,))
-           for init in (True, False)}
+      train_step, config=config, white_background=white_background, init=init, band=band),
+                                  (consts,)) for init in (True, False)}
   def step(state, batch):
     init = bool(np.asarray(jax.device_get(batch["init"])).reshape(-1)[0])
     return steps[init](state, batch)
@@ -179,100 +207,7 @@ def batch_of(step: int, config: PaintConfig, n_views: int, names: Sequence[str],
   return batch
 
 
-# ----------------------------------------------------------------------------- inputs
-
-
-def style_name(path: str) -> str:
-  return os.path.splitext(os.path.basename(path.rstrip("/")))[0]
-
-
-def read_styles(paths: Sequence[str], size: int) -> np.ndarray:
-  """The style images cover-cropped to size x size: [M, size, size, 3] float32; UserError
-  for an empty list, two styles of one name, or a file that is not a still image of at
-  least 16 x 16 pixels."""
-  if not paths:
-    raise UserError("--styles: give at least one style image")
-  names = [style_name(p) for p in paths]
-  for name, path in zip(names, paths):
-    if names.count(name) > 1:
-      raise UserError(f"{path}: two styles named {name!r}; rename one")
-  return np.stack([cover_crop(read_style_image(p), size, size) for p in paths])
-
-
-def build_cache(scene, nerf_run, config: PaintConfig, progress: bool) -> Dict[str, np.ndarray]:
-  """The packed sample lists of the scene's training views (sample_cache.view_samples)."""
-  field = NerfField(nerf_run.config)
-  views = [sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(int(i)),
-                                     nerf_run.config, config.top_k, config.cache_threshold)
-           for i in progress_bar(scene.split("train"), desc="caching samples",
-                                 disable=not progress, leave=False)]
-  return sample_cache.pack_views(views)
-
-
-def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
-  """The sample lists cached at `path` (None when there are none yet); UserError for a file
-  that is not a cache or one made from another NeRF run than `made_from` ("RUN@STEP")."""
-  if not os.path.exists(path):
-    return None
-  try:
-    with np.load(path) as saved:
-      source = str(saved["nerf_run"]) if "nerf_run" in saved.files else ""
-      if source != made_from:
-        raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
-                        f"{made_from}; delete it to rebuild")
-      return {k: saved[k] for k in saved.files if k != "nerf_run"}
-  except UserError:
-    raise
-  except (OSError, ValueError, KeyError, EOFError) as e:
-    raise UserError(f"{path}: not a sample cache ({e}); delete it to rebuild") from None
-
-
-def cache_source(nerf_run) -> str:
-  """What a cache records of the NeRF run it was made from: "ABSOLUTE_FOLDER@STEP"."""
-  return f"{os.path.abspath(nerf_run.run_dir)}@{nerf_run.step}"
-
-
-def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, progress: bool
-                        ) -> Dict[str, np.ndarray]:
-  """The run's cached sample lists (RUN/sample_cache.npz), built and written atomically on
-  first use. UserError for a cache made from another NeRF run (or another step of it)."""
-  path = os.path.join(run_dir, CACHE_FILE)
-  made_from = cache_source(nerf_run)
-  cache = read_cache(path, made_from)
-  if cache is not None:
-    return cache
-  cache = build_cache(scene, nerf_run, config, progress)
-  with atomic_path(path, sum(v.nbytes for v in cache.values())) as tmp:
-    with open(tmp, "wb") as f:
-      np.savez(f, nerf_run=np.array(made_from), **cache)
-  return cache
-
-
-def index_of(cache, config: PaintConfig):
-  """(index, V) of the painted vertices: those around every cached sample that carries
-  weight, grown by one vertex (painted_field.paint_index)."""
-  return paint_index((p[w > 0] for p, w in zip(cache["points"], cache["weights"])),
-                     config.resolution, config.scene_box)
-
-
-def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, Any]:
-  """What every step reads and no step changes (placed on the devices once), for the
-  scene's training views and the style images: "cache" (the packed sample lists of the N
-  training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (each style's
-  colour map: "transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]), "targets"
-  (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params) and "background"
-  [3]."""
-  encoder = vgg.load_vgg_params()
-  photos = np.asarray(scene.images[scene.split("train")], np.float32)
-  maps = [colour_map(jnp.asarray(photos), jnp.asarray(s)) if config.colour_transfer else
-          (jnp.eye(3), jnp.zeros(3), jnp.zeros(3)) for s in styles]
-  targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
-  stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
-  return dict(
-      cache={k: jnp.asarray(v) for k, v in cache.items()}, photos=jnp.asarray(photos),
-      maps=dict(zip(("transform", "mu_s", "mu_t"), stack([tuple(m) for m in maps]))),
-      targets=stack(targets), encoder=encoder,
-      background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
+# ----------------------------------------------------------------------------- checks
 
 
 def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, scene) -> None:

@@ -24,7 +24,7 @@ from msnerf_jax.kinds.stylized_scenes import load_decoder
 from msnerf_jax.models import vgg
 from msnerf_jax.models.painted_field import corners
 from msnerf_jax.style.transfer import stylize_image
-from msnerf_jax.train import paint
+from msnerf_jax.train import paint, paint_data
 
 
 def key_views(c2w: np.ndarray, count: int) -> np.ndarray:
@@ -130,11 +130,11 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
   t0 = time.time()
   run = runs_lib.load_run(run_dir, "painted")
   scene, _ = runs_lib.scene_of(run)
-  name = paint.style_name(style_path)
+  name = paint_data.style_name(style_path)
   if name in run.record["styles"]:
     raise UserError(f"{style_path}: the run already has a style named {name!r}")
   config = run.config
-  picture = paint.read_styles([style_path], config.style_size)[0]
+  picture = paint_data.read_styles([style_path], config.style_size)[0]
   train = scene.split("train")
   if views is None:
     views = key_views(scene.c2w[train], count)
@@ -146,7 +146,7 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
   decoder = load_decoder(decoder_dir)
   run_lock.acquire(run_dir)
   nerf_run = runs_lib.load_run(run.record["nerf_run"], "nerf")
-  cache = paint.load_or_build_cache(run_dir, scene, nerf_run, config, progress)
+  cache = paint_data.load_or_build_cache(run_dir, scene, nerf_run, config, progress)
   encoder = vgg.load_vgg_params()
   full = _stylized_key_views(scene, train, views, picture, decoder, encoder, scale)
   index = np.asarray(run.params["paint"]["index"])
@@ -179,7 +179,7 @@ def _polish(run, scene, cache, name, picture, start, steps, progress) -> np.ndar
   if steps == 0:
     return start
   config = dataclasses.replace(run.config, init_steps=0, views_per_style=1)
-  consts = paint.constants(scene, cache, picture[None], config)
+  consts = paint_data.constants(scene, cache, picture[None], config)
   index = np.asarray(run.params["paint"]["index"])
   state = paint.init_state(config, run.params["nerf"], 1, index, len(start) - 1)
   state = state.replace(params={**state.params, paint.TRAINED: {

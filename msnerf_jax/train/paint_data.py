@@ -1,0 +1,137 @@
+"""What painting reads, prepared once: the style pictures, the training views' sample lists
+cached from the frozen NeRF (RUN/sample_cache.npz, stamped with the NeRF run it was made
+from), the painted vertices, where each row's samples start (for crops), and the constants
+every step reads."""
+
+import os
+from typing import Any, Dict, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from msnerf_jax.core.config import PaintConfig
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.files import atomic_path
+from msnerf_jax.core.progress import progress_bar
+from msnerf_jax.data.images import cover_crop, read_style_image
+from msnerf_jax.models import vgg
+from msnerf_jax.models.nerf import NerfField
+from msnerf_jax.models.painted_field import paint_index
+from msnerf_jax.nerf import sample_cache
+from msnerf_jax.style import painting_loss
+from msnerf_jax.style.transfer import colour_map
+
+CACHE_FILE = "sample_cache.npz"
+
+
+def style_name(path: str) -> str:
+  return os.path.splitext(os.path.basename(path.rstrip("/")))[0]
+
+
+def read_styles(paths: Sequence[str], size: int) -> np.ndarray:
+  """The style images cover-cropped to size x size: [M, size, size, 3] float32; UserError
+  for an empty list, two styles of one name, or a file that is not a still image of at
+  least 16 x 16 pixels."""
+  if not paths:
+    raise UserError("--styles: give at least one style image")
+  names = [style_name(p) for p in paths]
+  for name, path in zip(names, paths):
+    if names.count(name) > 1:
+      raise UserError(f"{path}: two styles named {name!r}; rename one")
+  return np.stack([cover_crop(read_style_image(p), size, size) for p in paths])
+
+
+def build_cache(scene, nerf_run, config: PaintConfig, progress: bool) -> Dict[str, np.ndarray]:
+  """The packed sample lists of the scene's training views (sample_cache.view_samples)."""
+  field = NerfField(nerf_run.config)
+  views = [sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(int(i)),
+                                     nerf_run.config, config.top_k, config.cache_threshold)
+           for i in progress_bar(scene.split("train"), desc="caching samples",
+                                 disable=not progress, leave=False)]
+  return sample_cache.pack_views(views)
+
+
+def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
+  """The sample lists cached at `path` (None when there are none yet); UserError for a file
+  that is not a cache or one made from another NeRF run than `made_from` ("RUN@STEP")."""
+  if not os.path.exists(path):
+    return None
+  try:
+    with np.load(path) as saved:
+      source = str(saved["nerf_run"]) if "nerf_run" in saved.files else ""
+      if source != made_from:
+        raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
+                        f"{made_from}; delete it to rebuild")
+      return {k: saved[k] for k in saved.files if k != "nerf_run"}
+  except UserError:
+    raise
+  except (OSError, ValueError, KeyError, EOFError) as e:
+    raise UserError(f"{path}: not a sample cache ({e}); delete it to rebuild") from None
+
+
+def cache_source(nerf_run) -> str:
+  """What a cache records of the NeRF run it was made from: "ABSOLUTE_FOLDER@STEP"."""
+  return f"{os.path.abspath(nerf_run.run_dir)}@{nerf_run.step}"
+
+
+def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, progress: bool
+                        ) -> Dict[str, np.ndarray]:
+  """The run's cached sample lists (RUN/sample_cache.npz), built and written atomically on
+  first use. UserError for a cache made from another NeRF run (or another step of it)."""
+  path = os.path.join(run_dir, CACHE_FILE)
+  made_from = cache_source(nerf_run)
+  cache = read_cache(path, made_from)
+  if cache is not None:
+    return cache
+  cache = build_cache(scene, nerf_run, config, progress)
+  with atomic_path(path, sum(v.nbytes for v in cache.values())) as tmp:
+    with open(tmp, "wb") as f:
+      np.savez(f, nerf_run=np.array(made_from), **cache)
+  return cache
+
+
+def index_of(cache, config: PaintConfig):
+  """(index, V) of the painted vertices: those around every cached sample that carries
+  weight, grown by one vertex (painted_field.paint_index)."""
+  return paint_index((p[w > 0] for p, w in zip(cache["points"], cache["weights"])),
+                     config.resolution, config.scene_box)
+
+
+def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, Any]:
+  """What every step reads and no step changes (placed on the devices once), for the
+  scene's training views and the style images: "cache" (the packed sample lists of the N
+  training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (each style's
+  colour map: "transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]), "targets"
+  (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params) and "background"
+  [3]; with config.crop also "row_start" and "band" (row_starts; the band is taken out by
+  compile_train_step, a static size)."""
+  encoder = vgg.load_vgg_params()
+  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+  maps = [colour_map(jnp.asarray(photos), jnp.asarray(s)) if config.colour_transfer else
+          (jnp.eye(3), jnp.zeros(3), jnp.zeros(3)) for s in styles]
+  targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
+  stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
+  crops = {}
+  if config.crop:
+    row_start, band = row_starts(cache, scene.height, scene.width, config.crop)
+    crops = {"row_start": jnp.asarray(row_start), "band": band}
+  return dict(
+      **crops,
+      cache={k: jnp.asarray(v) for k, v in cache.items()}, photos=jnp.asarray(photos),
+      maps=dict(zip(("transform", "mu_s", "mu_t"), stack([tuple(m) for m in maps]))),
+      targets=stack(targets), encoder=encoder,
+      background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
+
+
+def row_starts(cache, height: int, width: int, crop: int):
+  """(row_start [N, H + 1] int32: where each row's samples start in each view's list, band:
+  the most samples `crop` consecutive rows of a view hold, rounded up to 1024) of packed
+  sample lists (sorted by pixel; the padding after the last sample of weight > 0)."""
+  starts = []
+  for pixel, weights in zip(cache["pixel"], cache["weights"]):
+    count = int(np.max(np.nonzero(weights > 0)[0], initial=-1)) + 1
+    starts.append(np.searchsorted(pixel[:count], np.arange(height + 1) * width))
+  starts = np.asarray(starts, np.int32)
+  band = int(np.max(starts[:, crop:] - starts[:, :-crop]))
+  return starts, max(1024, -(-band // 1024) * 1024)
