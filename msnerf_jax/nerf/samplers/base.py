@@ -17,7 +17,7 @@ class Sampler:
   Attributes:
     name: NerfConfig.sampler's value.
     levels: the params keys of the field's levels it renders, e.g. ("coarse", "fine").
-    occupancy: its params also hold an occupancy grid (params["occupancy"] [G, G, G]).
+    occupancy: its params also hold an occupancy grid (`params["occupancy"]`, [G, G, G]).
   """
   name: str = ""
   levels: tuple = ()
