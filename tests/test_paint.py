@@ -241,7 +241,9 @@ TWO_DEVICES = textwrap.dedent("""
       run = msnerf_jax.load_run(out)
       grids.append(run.params["paint"]["colours"])
     print("worst", float(np.max(np.abs(grids[0] - grids[1]))))
-    np.testing.assert_array_equal(grids[0], grids[1])
+    # The same steps to float rounding (VGG sees 4 images on one device, 2 on each of two).
+    assert float(np.max(np.abs(grids[0]))) > 0.01
+    np.testing.assert_allclose(grids[0], grids[1], atol=1e-4)
 """)
 
 

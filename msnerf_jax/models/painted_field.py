@@ -46,7 +46,7 @@ def trilinear(table: jnp.ndarray, index: jnp.ndarray, points: jnp.ndarray, bound
   chex.assert_rank([table, index], [3, 3])
   shape = points.shape[:-1]
   flat, weights = corners(points.reshape(-1, 3), index.shape[0], bound)
-  values = table[:, index.reshape(-1)[flat]]  # [M, P, 8, C]
+  values = jnp.asarray(table)[:, jnp.asarray(index).reshape(-1)[flat]]  # [M, P, 8, C]
   out = jnp.einsum("mpkc,pk->mpc", values, weights)
   return out.reshape(table.shape[0], *shape, table.shape[-1])
 

@@ -58,7 +58,7 @@ def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
   if not os.path.exists(path):
     return None
   try:
-    with np.load(path) as saved:
+    with np.load(path, allow_pickle=False) as saved:
       source = str(saved["nerf_run"]) if "nerf_run" in saved.files else ""
       if source != made_from:
         raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
