@@ -166,6 +166,7 @@ def test_the_nerf_is_bit_identical_and_has_no_optimizer_state(paint_world):
   assert all("index" not in p for p in paths)
 
 
+@pytest.mark.slow  # a painting of its own (the default suite stays short)
 def test_the_init_fit_moves_each_style_towards_its_colours(paint_world, tmp_path):
   """After the MSE fit to the colour-transferred photos, the red style renders redder than
   the blue one, and the blue one bluer."""
@@ -203,6 +204,7 @@ def test_k_styles_render_in_one_call_as_k_single_styles_and_blend_as_colours(pai
   np.testing.assert_allclose(photo, nerf_view, atol=1e-6)
 
 
+@pytest.mark.slow  # a painting of its own (the default suite stays short)
 def test_a_style_paints_the_same_in_a_run_of_one_style(paint_world, tmp_path):
   """Per-style grids: a style's colours in a run of M styles are those of a run of that
   style alone (its pairs come from its own name, its gradient from its own pairs)."""
@@ -215,6 +217,7 @@ def test_a_style_paints_the_same_in_a_run_of_one_style(paint_world, tmp_path):
   np.testing.assert_allclose(one[0], both[1], atol=1e-4)
 
 
+@pytest.mark.slow  # a painting of its own (the default suite stays short)
 def test_a_resumed_painting_ends_bit_identical(paint_world, tmp_path):
   split = str(tmp_path / "split")
   nerf_run = paint_world["nerfs"]["fast"]
@@ -395,6 +398,7 @@ def test_a_bad_new_style_gets_one_line_and_writes_nothing(paint_world, tmp_path,
   assert {n: os.path.getmtime(os.path.join(run_dir, n)) for n in os.listdir(run_dir)} == stamp
 
 
+@pytest.mark.slow  # a painting of its own (the default suite stays short)
 def test_the_viewer_shows_painted_styles_and_their_blends(paint_world):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.viewer import probe as probe_lib
