@@ -63,6 +63,13 @@ def init_state(config: PaintConfig, nerf_params, n_styles: int, index: np.ndarra
 # ----------------------------------------------------------------------------- the step
 
 
+def style_colour(paint_params, style, bound: float):
+  """points [P, 3] -> colours [P, 3] of one style (an index into paint_params["colours"])."""
+  table = paint_params["colours"][style][None]
+  return lambda points: jax.nn.sigmoid(trilinear(table, paint_params["index"], points,
+                                                 bound))[0]
+
+
 def render_pairs(paint_params, cache, views: jnp.ndarray, styles: jnp.ndarray, bound: float,
                  background: jnp.ndarray) -> jnp.ndarray:
   """Training views `views` [B] rendered from their cached samples, each in its style
@@ -70,10 +77,8 @@ def render_pairs(paint_params, cache, views: jnp.ndarray, styles: jnp.ndarray, b
   view)."""
   def one(view, style):
     lists = {k: cache[k][view] for k in ("points", "weights", "pixel", "accumulation")}
-    table = paint_params["colours"][style][None]
-    colour = lambda points: jax.nn.sigmoid(trilinear(table, paint_params["index"], points,
-                                                     bound))[0]
-    return sample_cache.cached_render(colour, lists, background)
+    return sample_cache.cached_render(style_colour(paint_params, style, bound), lists,
+                                      background)
   return jax.vmap(one)(views, styles)
 
 
@@ -108,10 +113,8 @@ def render_crops(paint_params, consts, batch, crop: int, band: int, bound: float
              "pixel": jnp.clip(pixel, 0, crop * width - 1),
              "accumulation": jax.lax.dynamic_slice_in_dim(cache["accumulation"][view],
                                                           top * width, crop * width)}
-    table = paint_params["colours"][style][None]
-    colour = lambda points: jax.nn.sigmoid(trilinear(table, paint_params["index"], points,
-                                                     bound))[0]
-    rows = sample_cache.cached_render(colour, lists, consts["background"])
+    rows = sample_cache.cached_render(style_colour(paint_params, style, bound), lists,
+                                      consts["background"])
     return jax.lax.dynamic_slice(rows.reshape(crop, width, 3), (0, left, 0), (crop, crop, 3))
   return jax.vmap(one)(batch["view"], batch["style"], batch["top"], batch["left"])
 

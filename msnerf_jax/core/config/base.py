@@ -40,6 +40,13 @@ def check_positive(config: Any, names, flag: Optional[str] = None) -> None:
       bad_setting(config, name, "must be positive", flag)
 
 
+def check_non_negative(config: Any, names) -> None:
+  """bad_setting for the first of `names` that is not a finite number >= 0."""
+  for name in names:
+    if not 0.0 <= getattr(config, name) < float("inf"):
+      bad_setting(config, name, "must be a number >= 0")
+
+
 def check_hash_settings(config: Any) -> None:
   """UserError naming the first hash-grid setting (hash_levels, hash_features,
   hash_table_size, hash_min_res, hash_max_res) of a config that cannot work."""

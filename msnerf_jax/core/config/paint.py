@@ -3,7 +3,8 @@ optimised with a style loss on rendered views (`msnerf paint train`)."""
 
 import dataclasses
 
-from msnerf_jax.core.config.base import bad_setting, check_at_least, check_positive, setting
+from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_non_negative,
+                                         check_positive, setting)
 from msnerf_jax.core.config.nerf import NerfConfig
 
 PAINT_LOSSES = ("nnfm", "adain")  # PaintConfig.style_loss.
@@ -58,9 +59,7 @@ class PaintConfig:
     check_at_least(self, ("resolution",), 2)
     if self.style_loss not in PAINT_LOSSES:
       bad_setting(self, "style_loss", f"choose from {', '.join(PAINT_LOSSES)}")
-    for name in ("style_weight", "content_weight", "tv_weight"):
-      if not 0.0 <= getattr(self, name) < float("inf"):
-        bad_setting(self, name, "must be a number >= 0")
+    check_non_negative(self, ("style_weight", "content_weight", "tv_weight"))
     check_at_least(self, ("style_size",), 16)
     check_at_least(self, ("init_steps",), 0)
     check_at_least(self, ("steps", "views_per_style", "top_k", "checkpoint_every",

@@ -3,7 +3,7 @@
 import dataclasses
 
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_hash_settings,
-                                         check_positive, setting)
+                                         check_non_negative, check_positive, setting)
 from msnerf_jax.core.config.nerf import NerfConfig
 
 
@@ -163,11 +163,7 @@ class AdainConfig:
                           "keep_checkpoints"))
     check_at_least(self, ("holdout_every",), 0)
     check_positive(self, ("lr",))
-    for name in ("lr_decay", "content_weight", "style_weight"):
-      if not 0.0 <= getattr(self, name) < float("inf"):
-        bad_setting(self, name, "must be a number >= 0")
-    if not 0.0 <= self.shift_weight < float("inf"):
-      bad_setting(self, "shift_weight", "must be a number >= 0")
+    check_non_negative(self, ("lr_decay", "content_weight", "style_weight", "shift_weight"))
     if self.shift_source not in SHIFT_SOURCES:
       bad_setting(self, "shift_source", f"choose from {', '.join(SHIFT_SOURCES)}")
     if self.shift_weight > 0 and self.size < SHIFT_MIN_SIZE:
@@ -221,8 +217,7 @@ class MultistyleConfig:
     check_positive(self, ("lr_init",), "lr")
     check_positive(self, ("lr_final",))
     check_at_least(self, ("rgb_extra_layers", "density_extra_layers"), 0)
-    if not 0.0 <= self.style_weight < float("inf"):
-      bad_setting(self, "style_weight", "must be a number >= 0")
+    check_non_negative(self, ("style_weight",))
     if self.style_weight > 0:
       check_at_least(self, ("style_patch",), 16)
       check_at_least(self, ("style_patches",))
