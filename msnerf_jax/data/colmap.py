@@ -25,6 +25,9 @@ CAMERA_MODELS = {
     0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
     4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
     8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
+    # COLMAP 3.12+ / 4.x (read, so that their cameras get the "not supported" message).
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16), 12: ("SIMPLE_DIVISION", 4), 13: ("DIVISION", 5),
+    14: ("SIMPLE_FISHEYE", 3), 15: ("FISHEYE", 4), 16: ("EUCM", 6), 17: ("EQUIRECTANGULAR", 2),
 }
 MODEL_IDS = {name: (i, n) for i, (name, n) in CAMERA_MODELS.items()}
 SUPPORTED = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
@@ -112,7 +115,8 @@ class _Reader:
 
 def _model_params(path: str, model_id: int) -> Tuple[str, int]:
   if model_id not in CAMERA_MODELS:
-    raise UserError(f"{path}: unknown camera model id {model_id} (COLMAP's are 0-10)")
+    raise UserError(f"{path}: unknown camera model id {model_id} (COLMAP's are "
+                    f"0-{max(CAMERA_MODELS)})")
   return CAMERA_MODELS[model_id]
 
 
@@ -162,7 +166,8 @@ def read_points_bin(path: str) -> Tuple[np.ndarray, List[np.ndarray]]:
 
 def _text_lines(path: str) -> List[Tuple[int, List[str]]]:
   """(line number, fields) of the non-comment lines; keeps empty lines of images.txt, whose
-  second line per image may be empty."""
+  second line per image may be empty (the last image's too: COLMAP ends such a file with
+  an empty line)."""
   try:
     with open(path, encoding="utf-8") as f:
       lines = f.read().splitlines()
@@ -198,8 +203,6 @@ def read_cameras_txt(path: str) -> Dict[int, Camera]:
 
 def read_images_txt(path: str) -> Tuple[List[Image], List[np.ndarray]]:
   lines = _text_lines(path)
-  while lines and not lines[-1][1]:
-    lines.pop()
   images, point_ids = [], []
   k = 0
   while k < len(lines):
