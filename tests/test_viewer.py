@@ -350,19 +350,26 @@ def test_bad_runs_and_ports_end_with_one_line(world, tmp_path, capsys):
                            str(tmp_path / "missing.png")], "missing.png", "image file")
 
 
-def test_browser_page_shows_a_new_render_after_a_slider_moves(world, tmp_path):
-  """experiments/tools/viewer_browser.py: headless Chromium through Playwright (skipped when
-  either is missing, as on CI)."""
+def test_browser_clicks_through_the_page_and_sees_render_image_at_every_step(world, tmp_path):
+  """experiments/tools/viewer_browser.py in headless Chromium through Playwright: load,
+  orbit, style, strength, upload and save, each frame on the page compared with
+  render_image of the same camera (skipped, with the reason, without Playwright or
+  Chromium; .ci/run installs both where it can)."""
   script = os.path.join(os.path.dirname(os.path.dirname(__file__)), "experiments",
                         "tools", "viewer_browser.py")
-  out = str(tmp_path / "screens.png")
-  done = subprocess.run([sys.executable, script, "--run", world["run"], "--out", out],
+  out = tmp_path / "screens"
+  done = subprocess.run([sys.executable, script, "--run", world["run"], "--out", str(out)],
                         capture_output=True, text=True, timeout=600,
                         env=dict(os.environ, PYTHONPATH=os.path.dirname(script) + "/../.."))
   if done.returncode == 77:
     pytest.skip(done.stdout.strip())
   assert done.returncode == 0, done.stdout + done.stderr
-  assert os.path.exists(out)
+  assert "6 of 6 steps passed" in done.stdout, done.stdout
+  for step in ("load", "orbit", "style", "strength", "upload"):
+    assert re.search(rf"^  {step} .* ok$", done.stdout, re.M), done.stdout
+  shots = sorted(p.name for p in out.glob("0*.png"))
+  assert shots == ["00_load.png", "01_orbit.png", "02_style.png", "03_strength.png",
+                   "04_upload.png"], shots
 
 
 def test_nerf_run_is_viewed_without_style_controls(world):

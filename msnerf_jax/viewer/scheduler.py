@@ -21,11 +21,11 @@ DeliverFn = Callable[[Hashable, Any, str, float], None]
 
 
 class _Client:
-  __slots__ = ("request", "version", "changed_at", "low_done", "full_done")
+  __slots__ = ("request", "version", "changed_at", "low_done", "full_done", "full_shown")
 
   def __init__(self):
     self.request, self.version, self.changed_at = None, 0, 0.0
-    self.low_done = self.full_done = 0
+    self.low_done = self.full_done = self.full_shown = 0
 
 
 class Scheduler:
@@ -53,6 +53,12 @@ class Scheduler:
       state.request, state.changed_at = request, time.monotonic()
       state.version += 1
       self._cond.notify_all()
+
+  def settled(self, client: Hashable) -> bool:
+    """Whether the client's latest request has had its full frame delivered."""
+    with self._cond:
+      state = self._clients.get(client)
+      return state is not None and state.full_shown == state.version
 
   def remove(self, client: Hashable) -> None:
     with self._cond:
@@ -145,6 +151,10 @@ class Scheduler:
       self._deliver(client, frame, level, seconds)
     except Exception:  # pylint: disable=broad-except
       traceback.print_exc()  # e.g. the client left while the frame was sent.
+      return
+    if level == "full":
+      with self._cond:
+        state.full_shown = max(state.full_shown, version)
 
   def _serve_low_frames(self) -> None:
     """Between two bands of a full frame: the low frames clients wait for (each once), so

@@ -8,6 +8,7 @@ are only written into the output folder, under names the server chooses.
 import dataclasses
 import ipaddress
 import json
+import math
 import os
 import socket
 import threading
@@ -142,9 +143,10 @@ class ViewerServer:
     state = self._clients.get(client_id)
     if state is None:
       return
-    aspect = camera.image_width / max(camera.image_height, 1) if camera.image_height else 1.0
-    state.view = View(tuple(float(x) for x in camera.wxyz),
-                      tuple(float(x) for x in camera.position), float(camera.fov), aspect)
+    view = view_of_camera(camera)
+    if view is None:  # a malformed camera message: the tab keeps its last view.
+      return
+    state.view = view
     self._request(client_id)
 
   def _set_initial_camera(self) -> None:
@@ -166,9 +168,15 @@ class ViewerServer:
   # The controls.
 
   def _choice(self, state: _ClientState) -> StyleChoice:
-    gui = state.gui
-    return StyleChoice(gui["style"].value, gui["blend_with"].value, float(gui["blend"].value),
-                       float(gui["strength"].value))
+    """The controls' values; names the tab's table lacks and numbers outside [0, 1] (which
+    only a client that does not speak for the page sends) read as the first style and the
+    nearest end."""
+    gui, first = state.gui, next(iter(state.table))
+    name = lambda value: value if value in state.table else first
+    unit = lambda value, default: min(max(value, 0.0), 1.0) if math.isfinite(value) else default
+    return StyleChoice(name(gui["style"].value), name(gui["blend_with"].value),
+                       unit(float(gui["blend"].value), 0.0),
+                       unit(float(gui["strength"].value), 1.0))
 
   def _build_gui(self, client, state: _ClientState) -> None:
     gui, frames, scene = client.gui, self.frames, self.frames.scene
@@ -281,7 +289,7 @@ class ViewerServer:
       self._notify(client_id, "Not saved", str(e), error=True)
       return
     self._notify(client_id, "Saved", path)
-    state.handle.send_file_download(os.path.basename(path), data)
+    state.handle.send_file_download(os.path.basename(path), data, save_immediately=True)
 
   def _save_keyframe(self, client_id: int) -> None:
     state = self._clients.get(client_id)
@@ -300,6 +308,24 @@ class ViewerServer:
       return
     self._notify(client_id, "Keyframe saved",
                  f"{len(cameras)} in {path} (render them with `msnerf render --camera-path`)")
+
+
+def view_of_camera(camera, max_coordinate: float = 1e6) -> Optional[View]:
+  """The View of a viser camera (a client's camera handle), or None when its message was
+  malformed: a pose, field of view or viewport size that is not finite, out of range or not
+  numbers at all."""
+  try:
+    wxyz = tuple(float(x) for x in np.asarray(camera.wxyz, np.float64).reshape(4))
+    position = tuple(float(x) for x in np.asarray(camera.position, np.float64).reshape(3))
+    fov, height = float(camera.fov), float(camera.image_height)
+    aspect = float(camera.image_width) / height if height > 0 else 1.0
+  except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+    return None
+  numbers = np.asarray([*wxyz, *position, fov, aspect])
+  if (not np.all(np.isfinite(numbers)) or not 1e-3 < fov < math.pi - 1e-3
+      or np.abs(position).max() > max_coordinate or not 1e-3 < np.linalg.norm(wxyz) < 1e3):
+    return None
+  return View(wxyz, position, fov, aspect)
 
 
 def keyframes_dict(cameras) -> Dict[str, Any]:
