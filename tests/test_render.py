@@ -88,6 +88,26 @@ def test_conditioned_chunked_padded_image_equals_one_call(density_aware):
                                atol=tol)
 
 
+@pytest.mark.parametrize("per_point_set", [False, True])
+def test_conditioned_field_with_chunk_zero_is_one_call(per_point_set):
+  """mlp_chunk 0 means one field call, also with M style codes: no loop over the rays in the
+  program (a chunk of 1 once mapped over the rays one by one, 20x slower on the hash trunk),
+  and the same values as chunks of whole rays."""
+  from msnerf_jax.nerf.field_samples import field_in_chunks  # pylint: disable=g-import-not-at-top
+  field, params, styles = style_setup(False)
+  codes = field.codes(params["fine"], styles)
+  rng = np.random.default_rng(0)
+  shape = (3, 12, 4, 3) if per_point_set else (12, 4, 3)
+  points = jnp.asarray(rng.uniform(-1, 1, shape), jnp.float32)
+  viewdirs = jnp.asarray(rng.normal(size=(12, 1, 3)), jnp.float32)
+  call = lambda chunk: lambda p: field_in_chunks(field, p["fine"], points, viewdirs, codes, chunk)
+  program = str(jax.make_jaxpr(call(0))(params))
+  assert "while" not in program and "scan" not in program
+  assert "scan" in str(jax.make_jaxpr(call(8))(params))  # chunks: a loop (lax.map)
+  for a, b in zip(call(0)(params), call(8)(params)):
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("density_aware", [False, True])
 def test_one_style_render_vmaps_to_the_sweep(density_aware):
   field, params, styles = style_setup(density_aware)

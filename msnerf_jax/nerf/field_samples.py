@@ -86,7 +86,9 @@ def field_in_chunks(field, params, points, viewdirs, codes, chunk: int):
 
   if per_point_set:
     points = jnp.moveaxis(points, 0, 1)
-  # The trunk runs once per sample, the heads once per (sample, condition): scale the chunk.
-  rgb, sigma = apply_in_chunks(rays_first, params, points, viewdirs,
-                               max(1, chunk // (n_conditions if per_point_set else 1)))
+  # The trunk runs once per sample, the heads once per (sample, condition): scale the chunk
+  # (chunk <= 0, one call, stays one call: a chunk of 1 would map over the rays one by one).
+  if chunk > 0:
+    chunk = max(1, chunk // (n_conditions if per_point_set else 1))
+  rgb, sigma = apply_in_chunks(rays_first, params, points, viewdirs, chunk)
   return jnp.moveaxis(rgb, 0, 1), (jnp.moveaxis(sigma, 0, 1) if sigma.ndim == 3 else sigma)
