@@ -73,7 +73,7 @@ def load_blender(path: str, downscale: int = 1) -> Scene:
       pose = np.asarray(frame["transform_matrix"], dtype=object)
       try:
         pose = pose.astype(np.float64)
-      except (TypeError, ValueError):
+      except (TypeError, ValueError, OverflowError):  # (10**400)
         raise UserError(f"{tpath}: frame {i} transform_matrix is not numeric") from None
       if pose.shape != (4, 4) and pose.shape != (3, 4):
         raise UserError(f"{tpath}: frame {i} transform_matrix has shape {pose.shape}, "

@@ -42,8 +42,7 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
                     "(perspective only)")
   if not meta["camera_path"]:
     raise UserError(f"{path}: 'camera_path' is empty")
-  width = int(json_number(meta.get("render_width"), path, "render_width", positive=True))
-  height = int(json_number(meta.get("render_height"), path, "render_height", positive=True))
+  width, height = (_pixels(meta.get(key), path, key) for key in ("render_width", "render_height"))
   fps = json_number(meta.get("fps", 24), path, "fps", positive=True)
   cameras = []
   for i, frame in enumerate(meta["camera_path"]):
@@ -52,9 +51,11 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
       raise UserError(f"{where} needs 'camera_to_world' and 'fov'")
     try:
       matrix = np.asarray(frame["camera_to_world"], np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
       raise UserError(f"{where}: camera_to_world is not numeric") from None
-    if matrix.size != 16 or not np.all(np.isfinite(matrix)):
+    with np.errstate(over="ignore"):
+      finite = np.all(np.isfinite(matrix.astype(np.float32)))  # (1e308: inf as float32)
+    if matrix.size != 16 or not finite:
       raise UserError(f"{where}: camera_to_world must be 16 finite numbers (a 4x4 matrix)")
     c2w = matrix.reshape(4, 4)[:3, :4]
     if abs(np.linalg.det(c2w[:, :3])) < 1e-6:
@@ -64,8 +65,18 @@ def read_camera_path(path: str) -> Tuple[List[cameras_lib.Camera], float]:
       raise UserError(f"{where}: fov {fov} must be below 180 degrees")
     focal = 0.5 * height / np.tan(np.radians(fov) / 2)
     K = cameras_lib.centre_origin_K(focal, focal, width / 2, height / 2)
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0:
+      raise UserError(f"{where}: fov {fov} gives no usable focal length at {width}x{height}")
     cameras.append(cameras_lib.Camera(c2w.astype(np.float32), K, height, width))
   return cameras, fps
+
+
+def _pixels(value: Any, path: str, key: str) -> int:
+  """A size in pixels of the file: a whole number >= 1 (UserError naming `key` otherwise)."""
+  number = json_number(value, path, key, positive=True)
+  if number != int(number) or number > 2 ** 20:
+    raise UserError(f"{path}: {key} must be a whole number of pixels (1 to 2^20), got {value!r}")
+  return int(number)
 
 
 def camera_path_dict(poses: Sequence[np.ndarray], K: np.ndarray, height: int, width: int,

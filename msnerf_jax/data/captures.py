@@ -149,8 +149,13 @@ def load_images(capture: Capture, factor: int) -> Tuple[np.ndarray, np.ndarray, 
         raise UserError(f"{path}: image is {full[0]}x{full[1]}, but its camera in "
                         f"{capture.source} is {camera['w']:g}x{camera['h']:g}")
     images.append(image)
-    Ks.append(cameras_lib.centre_origin_K(camera["fx"], camera["fy"], camera["cx"],
-                                          camera["cy"], sx, sy))
+    K = cameras_lib.centre_origin_K(camera["fx"], camera["fy"], camera["cx"], camera["cy"],
+                                    sx, sy)
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+      raise UserError(f"{capture.source}: the camera of {path} has intrinsics out of range "
+                      f"(fx {camera['fx']:g}, fy {camera['fy']:g}, cx {camera['cx']:g}, "
+                      f"cy {camera['cy']:g})")
+    Ks.append(K)
     files.append(small or path)
   return images_lib.stack_same_size(images, files), np.stack(Ks), files
 
@@ -188,14 +193,28 @@ def rotation_to_z(up: np.ndarray) -> np.ndarray:
   return np.eye(3) + vx + vx @ vx / (1.0 + c)
 
 
-def normalise(c2w: np.ndarray, bounds: Optional[np.ndarray], layout: str):
+def normalise(c2w: np.ndarray, bounds: Optional[np.ndarray], layout: str,
+              source: str = "the capture"):
   """(poses [N, 3, 4], near, far, ndc, render path [P, 3, 4], description) of a capture in
-  the given layout ("forward-facing" or "object"); see the module docstring."""
+  the given layout ("forward-facing" or "object"); see the module docstring. UserError
+  naming `source` when its cameras cannot be normalised (all at one place, or so far apart
+  that the numbers overflow)."""
+  with np.errstate(all="ignore"):
+    out = _normalise(c2w, bounds, layout, source)
+  poses, near, far, _, path, _ = out
+  if not (np.all(np.isfinite(poses.astype(np.float32))) and np.all(np.isfinite(
+      path.astype(np.float32))) and 0 < near < far < np.finfo(np.float32).max):
+    raise UserError(f"{source}: the cameras cannot be normalised as {layout} (no distinct "
+                    "positions, or positions and depths out of range)")
+  return out
+
+
+def _normalise(c2w, bounds, layout, source):
   if layout == "forward-facing":
     if bounds is None:  # no sparse points: the depths of the point the cameras look at
       depth = np.abs(np.einsum("ni,ni->n", focus_point(c2w) - c2w[:, :3, 3], -c2w[:, :3, 2]))
       bounds = np.stack([0.5 * depth, 4.0 * depth], 1)
-    poses, bounds, path = llff.forward_facing(c2w, bounds)
+    poses, bounds, path = llff.forward_facing(c2w, bounds, source=source)
     near, far = float(bounds.min() * 0.9), float(bounds.max())
     return poses, near, far, True, path, "forward-facing: LLFF recentring, NDC rays"
   centre = focus_point(c2w)
@@ -261,8 +280,12 @@ def load_capture(config: DataConfig, fmt: str) -> Tuple[Scene, DataConfig]:
   if layout == "auto":
     layout = ("forward-facing" if view_spread_degrees(capture.c2w) < FORWARD_FACING_DEGREES
               else "object")
-  poses, near, far, ndc, path, description = normalise(capture.c2w, capture.bounds, layout)
-  coeffs = np.stack([c["coeffs"] for c in capture.cameras]).astype(np.float32)
+  poses, near, far, ndc, path, description = normalise(capture.c2w, capture.bounds, layout,
+                                                       capture.source)
+  with np.errstate(over="ignore"):
+    coeffs = np.stack([c["coeffs"] for c in capture.cameras]).astype(np.float32)
+  if not np.all(np.isfinite(coeffs)):
+    raise UserError(f"{capture.source}: lens distortion coefficients out of range")
   scene = Scene(images=images, c2w=poses.astype(np.float32), K=Ks[0], near=near, far=far,
                 ndc=ndc, white_background=False,
                 splits=capture.splits or llff.holdout_splits(len(images), config.llff_holdout),

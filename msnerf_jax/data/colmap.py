@@ -150,15 +150,14 @@ def read_images_bin(path: str) -> Tuple[List[Image], List[np.ndarray]]:
 def read_points_bin(path: str) -> Tuple[np.ndarray, List[np.ndarray]]:
   r = _Reader(path)
   count = r.read("Q")[0]
-  xyz = np.zeros((count, 3))
-  tracks = []
-  for k in range(count):
+  xyz, tracks = [], []
+  for _ in range(count):
     values = r.read("Q3d3BdQ")
-    xyz[k] = values[1:4]
+    xyz.append(values[1:4])
     track = r.array(np.dtype([("image", "<i4"), ("point2d", "<i4")]), values[8])
     tracks.append(track["image"].astype(np.int64))
   r.done()
-  return xyz, tracks
+  return np.asarray(xyz, np.float64).reshape(-1, 3), tracks
 
 
 # ----------------------------------------------------------------------------- text
@@ -178,9 +177,12 @@ def _text_lines(path: str) -> List[Tuple[int, List[str]]]:
 
 def _numbers(path: str, line: int, fields: List[str], kind=float) -> List:
   try:
-    return [kind(x) for x in fields]
+    values = [kind(x) for x in fields]
   except ValueError:
     raise UserError(f"{path}: line {line}: expected numbers, got {' '.join(fields)!r}") from None
+  if kind is int and not all(-2 ** 63 <= v < 2 ** 63 for v in values):
+    raise UserError(f"{path}: line {line}: a number out of range in {' '.join(fields)!r}")
+  return values
 
 
 def read_cameras_txt(path: str) -> Dict[int, Camera]:
@@ -275,6 +277,8 @@ def camera_intrinsics(camera: Camera, source: str) -> Tuple[float, float, float,
                                                             np.ndarray]:
   """(fx, fy, cx, cy, distortion [5]) of a COLMAP camera, in COLMAP's pixel convention."""
   p = camera.params
+  if not np.all(np.isfinite(p)):
+    raise UserError(f"{source}: camera parameters {p} must be finite")
   coeffs = np.zeros(5)
   if camera.model == "SIMPLE_PINHOLE":
     fx = fy = p[0]

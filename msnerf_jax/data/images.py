@@ -42,17 +42,24 @@ def list_images(folder: str) -> List[str]:
   return paths
 
 
-def _to_float(array: np.ndarray) -> np.ndarray:
+def one_line(error: BaseException) -> str:
+  """An exception's message on one line (numpy's and Pillow's may span several)."""
+  return " ".join(str(error).split())
+
+
+def _to_float(array: np.ndarray, path: str) -> np.ndarray:
   if array.dtype == np.uint8:
     return array.astype(np.float32) / 255.0
   if array.dtype in (np.uint16, np.int32, np.uint32) or array.dtype == np.int16:
     # 16-bit PNG/TIFF (Pillow reports 'I;16' or 'I' as int32 with values up to 65535).
     return np.clip(array.astype(np.float32) / 65535.0, 0.0, 1.0)
   if np.issubdtype(array.dtype, np.floating):
+    if np.any(np.isnan(array)):  # (a float TIFF)
+      raise UserError(f"{path}: pixels hold NaN")
     return np.clip(array.astype(np.float32), 0.0, 1.0)
   if array.dtype == bool:
     return array.astype(np.float32)
-  raise UserError(f"unsupported pixel type {array.dtype}")
+  raise UserError(f"{path}: unsupported pixel type {array.dtype}")
 
 
 def read_image(path: str,
@@ -140,10 +147,10 @@ def _decode(source, path: str, background: Optional[float], max_side: Optional[i
   except Image.UnidentifiedImageError:
     raise UserError(f"{path}: not an image (no image format recognised)") from None
   except (OSError, SyntaxError, ValueError) as e:
-    raise UserError(f"{path}: unreadable or truncated image ({e})") from None
+    raise UserError(f"{path}: unreadable or truncated image ({one_line(e)})") from None
   except Exception as e:  # Pillow raises many types for corrupt data.
-    raise UserError(f"{path}: not a readable image ({type(e).__name__}: {e})") from None
-  return _to_rgb(_to_float(array), background, keep_alpha)
+    raise UserError(f"{path}: not a readable image ({type(e).__name__}: {one_line(e)})") from None
+  return _to_rgb(_to_float(array, path), background, keep_alpha)
 
 
 def _normalize_mode(image: Image.Image) -> Image.Image:
@@ -239,34 +246,57 @@ def read_json(path: str, hint: str = "") -> Any:
   to the message). A missing file raises FileNotFoundError."""
   import json  # pylint: disable=g-import-not-at-top
   try:
-    with open(path) as f:
+    with open(path, encoding="utf-8") as f:
       return json.load(f)
-  except (json.JSONDecodeError, UnicodeDecodeError) as e:
+  except (ValueError, UnicodeDecodeError) as e:  # (JSONDecodeError, a 5000-digit number)
     raise UserError(f"{path}: malformed JSON ({e}){hint}") from None
+  except RecursionError:
+    raise UserError(f"{path}: malformed JSON (nested too deeply){hint}") from None
 
 
 def json_number(value: Any, source: str, key: str, positive: bool = False) -> float:
   """A JSON field's value as a float; UserError naming `source` and `key` unless it is a
   finite number (not a bool), and with `positive`, above 0."""
-  if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
-      or (positive and value <= 0)):
+  number = float("nan")
+  if isinstance(value, (int, float)) and not isinstance(value, bool):
+    number = float(value) if abs(value) < 2 ** 1024 else float("inf")  # (10**400: no float)
+  if not np.isfinite(number) or (positive and number <= 0):
     raise UserError(f"{source}: {key} must be a {'positive' if positive else 'finite'} "
                     f"number, got {value!r}")
-  return float(value)
+  return number
 
 
-def read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
-  """np.load without pickles, as float32; UserError naming the file unless it holds a finite
-  array of `shape` (None = any size along that axis)."""
+def load_numbers(path: str, what: str = "a valid .npy array") -> np.ndarray:
+  """np.load of a .npy file of real numbers (no pickles); UserError naming the file when it
+  is missing, not a .npy file (`what` it should be) or holds other values (strings,
+  records, complex numbers, dates ...)."""
   try:
     array = np.load(path, allow_pickle=False)
   except FileNotFoundError:
     raise UserError(f"{path}: missing") from None
   except (ValueError, OSError, EOFError) as e:
-    raise UserError(f"{path}: not a valid .npy array ({e})") from None
+    raise UserError(f"{path}: not {what} ({one_line(e)})") from None
+  except (MemoryError, KeyboardInterrupt):
+    raise
+  except Exception as e:  # pylint: disable=broad-except  # a broken header: SyntaxError ...
+    raise UserError(f"{path}: not {what} ({type(e).__name__}: {one_line(e)})") from None
+  if not isinstance(array, np.ndarray):
+    array.close()  # (an NpzFile holds the file open)
+    raise UserError(f"{path}: not {what} (an .npz archive)")
+  if array.dtype.kind not in "biuf":
+    raise UserError(f"{path}: holds {array.dtype} values, expected numbers")
+  return array
+
+
+def read_npy(path: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+  """np.load without pickles, as float32; UserError naming the file unless it holds a finite
+  array of `shape` (None = any size along that axis)."""
+  array = load_numbers(path)
   if array.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, array.shape)):
     raise UserError(f"{path}: array of shape {array.shape}, expected "
                     f"{tuple('?' if s is None else s for s in shape)}")
+  with np.errstate(over="ignore"):
+    array = array.astype(np.float32)
   if not np.all(np.isfinite(array)):
-    raise UserError(f"{path}: holds NaN or inf")
-  return array.astype(np.float32)
+    raise UserError(f"{path}: holds NaN or inf (or numbers beyond float32)")
+  return array

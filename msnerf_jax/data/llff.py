@@ -79,12 +79,7 @@ def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0
   Every `holdout`-th image is held out as the val and test split.
   """
   pb_path = os.path.join(path, "poses_bounds.npy")
-  try:
-    poses_bounds = np.load(pb_path, allow_pickle=False)
-  except FileNotFoundError:
-    raise UserError(f"{pb_path}: missing") from None
-  except (ValueError, OSError, EOFError) as e:
-    raise UserError(f"{pb_path}: not a readable .npy array ({e})") from None
+  poses_bounds = images_lib.load_numbers(pb_path, "a readable .npy array")
   if poses_bounds.ndim != 2 or poses_bounds.shape[1] != 17:
     raise UserError(f"{pb_path}: shape {poses_bounds.shape}, expected [N, 17] "
                     "(3x5 pose-hwf + 2 bounds per image)")
@@ -106,11 +101,15 @@ def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0
   if np.any(bounds <= 0):
     raise UserError(f"{pb_path}: depth bounds must be positive")
   h, w = images.shape[1:3]
-  focal = poses[0, 2, 4] * h / poses[0, 0, 4]  # hwf is stored for the full-size images.
+  with np.errstate(all="ignore"):
+    focal = poses[0, 2, 4] * h / poses[0, 0, 4]  # hwf is stored for the full-size images.
+  if not np.isfinite(np.float32(focal)) or np.float32(focal) <= 0:
+    raise UserError(f"{pb_path}: the first pose's height {poses[0, 0, 4]:g} and focal length "
+                    f"{poses[0, 2, 4]:g} give no usable focal length (both must be positive)")
   # LLFF stores [down, right, back]; NeRF wants [right, up, back].
   poses = np.concatenate([poses[:, :, 1:2], -poses[:, :, 0:1], poses[:, :, 2:4]], 2)
   check_poses(poses, pb_path, files)
-  poses, bounds, render_poses = forward_facing(poses, bounds, bd_factor)
+  poses, bounds, render_poses = forward_facing(poses, bounds, bd_factor, pb_path)
   K = np.array([[focal, 0, 0.5 * w], [0, focal, 0.5 * h], [0, 0, 1]], np.float32)
   return Scene(images=images, c2w=poses.astype(np.float32), K=K, near=float(bounds.min() * 0.9),
                far=float(bounds.max()), ndc=True, white_background=False,
@@ -119,21 +118,35 @@ def load_llff(path: str, factor: int = 8, holdout: int = 8, bd_factor: float = 0
                image_paths=tuple(files))
 
 
-def forward_facing(poses: np.ndarray, bounds: np.ndarray, bd_factor: float = 0.75):
+def forward_facing(poses: np.ndarray, bounds: np.ndarray, bd_factor: float = 0.75,
+                   source: str = "the scene"):
   """LLFF's normalisation of a forward-facing capture (reference code): the scene scaled so
   the nearest depth bound is 1 / bd_factor, the poses recentred on their average camera.
 
   Args:
     poses: [N, 3, 4] camera-to-world (OpenGL axes); bounds: [N, 2] near/far depths.
+    source: the file named when they cannot be normalised.
   Returns:
     (poses [N, 3, 4], bounds [N, 2], spiral render path [120, 3, 4]), float64.
+  Raises:
+    UserError naming `source` when the cameras have no average (they look in opposite
+    directions) or the numbers overflow float32.
   """
-  scale = 1.0 / (bounds.min() * bd_factor)
-  poses = np.array(poses, np.float64)
-  poses[:, :3, 3] *= scale
-  bounds = bounds * scale
-  poses = recenter_poses(poses)
-  return poses, bounds, spiral_path(poses, bounds)
+  with np.errstate(all="ignore"):
+    scale = 1.0 / (bounds.min() * bd_factor)
+    poses = np.array(poses, np.float64)
+    poses[:, :3, 3] *= scale
+    bounds = bounds * scale
+    try:
+      poses = recenter_poses(poses)
+      path = spiral_path(poses, bounds)
+    except np.linalg.LinAlgError:
+      path = np.full((1, 3, 4), np.nan)
+  for array in (poses, bounds, path):
+    if not np.all(np.isfinite(array.astype(np.float32))):
+      raise UserError(f"{source}: the cameras cannot be normalised as a forward-facing scene "
+                      "(no average view direction, or positions and depths out of range)")
+  return poses, bounds, path
 
 
 def holdout_splits(n: int, holdout: int):

@@ -221,7 +221,35 @@ def read_manifest(out_dir: str) -> Dict[str, Any]:
   if kind not in CONTENT_STATS_KINDS:
     raise UserError(f"{path}: content_stats is {kind!r}, expected one of "
                     f"{', '.join(CONTENT_STATS_KINDS)}")
+  _check_manifest(manifest, path)
   return manifest
+
+
+def _check_manifest(manifest: Dict[str, Any], path: str) -> None:
+  """UserError naming the manifest's file and key unless its values have the types and
+  ranges stylize_scene writes."""
+  whole = lambda v: isinstance(v, int) and not isinstance(v, bool)
+  for key in ("height", "width", "n_views"):
+    if not whole(manifest[key]) or manifest[key] < 1:
+      raise UserError(f"{path}: {key} must be a whole number >= 1, got {manifest[key]!r}")
+  if not isinstance(manifest["data"], dict):
+    raise UserError(f"{path}: data must be an object (the scene's settings)")
+  splits = manifest["splits"]
+  if not isinstance(splits, dict) or not all(
+      isinstance(ids, list) and all(whole(i) and 0 <= i < manifest["n_views"] for i in ids)
+      for ids in splits.values()):
+    raise UserError(f"{path}: splits must map names to lists of view numbers below n_views "
+                    f"{manifest['n_views']}")
+  styles = manifest["styles"]
+  if not isinstance(styles, list) or not all(
+      isinstance(s, dict) and isinstance(s.get("name"), str) and s["name"] for s in styles):
+    raise UserError(f"{path}: styles must be a list of objects with a 'name'")
+  names = [s["name"] for s in styles]
+  if len(set(names)) != len(names) or any(os.sep in n or n in (".", "..") for n in names):
+    raise UserError(f"{path}: style names must be distinct folder names, got {names}")
+  done = manifest["done"]
+  if not isinstance(done, list) or not all(isinstance(n, str) for n in done):
+    raise UserError(f"{path}: done must be a list of style names")
 
 
 def read_content_stats(out_dir: str):
@@ -268,15 +296,15 @@ def read_views(folder: str, name: str, n: int, height: int, width: int,
                progress: bool = True) -> np.ndarray:
   """The n views of one style as uint8 [n, height, width, 3]; UserError naming a file that
   cannot be read or has another size than the manifest's."""
-  images = np.empty((n, height, width, 3), np.uint8)
+  images = []  # (allocated as the views are read: the manifest's size may be wrong)
   for i in progress_bar(range(n), desc=f"loading {name}", disable=not progress, leave=False):
     path = view_file(folder, name, i)
     image = images_lib.read_image(path)
     if image.shape[:2] != (height, width):
       raise UserError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, the manifest "
                       f"says {width}x{height}")
-    images[i] = images_lib.to_uint8(image)
-  return images
+    images.append(images_lib.to_uint8(image))
+  return np.stack(images) if images else np.zeros((0, height, width, 3), np.uint8)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -110,7 +110,7 @@ def read_transforms(folder: str) -> Dict[str, Any]:
       raise UserError(f"{where} needs 'file_path' and 'transform_matrix'")
     try:
       pose = np.asarray(frame["transform_matrix"], dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # (10**400)
       raise UserError(f"{where}: transform_matrix is not a numeric matrix") from None
     if pose.shape not in ((4, 4), (3, 4)):
       raise UserError(f"{where}: transform_matrix has shape {pose.shape}, expected 4x4")

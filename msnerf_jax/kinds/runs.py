@@ -165,7 +165,7 @@ def scene_of(run: Run):
   """(scene, data config) a loaded run was trained on, reloaded: for a NeRF trained on one
   style of a stylized dataset (run.json's "style"), that style's views are its images."""
   source = os.path.join(run.run_dir, RUN_FILE)
-  scene, data = load_scene(_data_config(run.record, source))
+  scene, data = _load_scene(_data_config(run.record, source), source)
   style = run.record.get("style")
   if style is not None:
     if not isinstance(style, dict) or not {"stylized", "name"} <= set(style):
@@ -178,13 +178,28 @@ def _data_config(record: Dict[str, Any], source: str) -> config_lib.DataConfig:
   """The DataConfig of a run.json record read by read_run_file (`source` names it)."""
   if "data" not in record:
     raise UserError(f"{source}: a {record['kind']!r} run has no scene")
-  return config_lib.from_dict(config_lib.DataConfig, record["data"], source)
+  config = config_lib.from_dict(config_lib.DataConfig, record["data"], f"{source}: data")
+  if not config.path:
+    raise UserError(f"{source}: data: path is empty (which scene was the run trained on?)")
+  return config
 
 
 def run_scene(run_dir: str):
   """The scene (its cameras and normalised world) a run folder was trained on, without
   loading its checkpoint."""
-  return load_scene(_data_config(read_run_file(run_dir), os.path.join(run_dir, RUN_FILE)))[0]
+  source = os.path.join(run_dir, RUN_FILE)
+  return _load_scene(_data_config(read_run_file(run_dir), source), source)[0]
+
+
+def _load_scene(data: config_lib.DataConfig, source: str):
+  """load_scene of a run's recorded data; a setting it refuses (`--format X: ...`, as the
+  loaders word an option) was read from `source`, which the message names."""
+  try:
+    return load_scene(data)
+  except UserError as e:
+    if str(e).startswith("--"):
+      raise UserError(f"{source}: data: {str(e)[2:]}") from None
+    raise
 
 
 def load_run_and_scene(run_dir: str, kind: str):

@@ -14,7 +14,7 @@ from msnerf_jax.core.config import PaintConfig
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.progress import progress_bar
-from msnerf_jax.data.images import cover_crop, read_style_image
+from msnerf_jax.data.images import cover_crop, one_line, read_style_image
 from msnerf_jax.models import vgg
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
@@ -63,11 +63,44 @@ def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
       if source != made_from:
         raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
                         f"{made_from}; delete it to rebuild")
-      return {k: saved[k] for k in saved.files if k != "nerf_run"}
+      cache = {k: saved[k] for k in saved.files if k != "nerf_run"}
   except UserError:
     raise
   except (OSError, ValueError, KeyError, EOFError) as e:
-    raise UserError(f"{path}: not a sample cache ({e}); delete it to rebuild") from None
+    raise UserError(f"{path}: not a sample cache ({one_line(e)}); delete it to rebuild") from None
+  except (MemoryError, KeyboardInterrupt):
+    raise
+  except Exception as e:  # pylint: disable=broad-except  # a broken .npy header: SyntaxError ...
+    raise UserError(f"{path}: not a sample cache ({type(e).__name__}: {one_line(e)}); delete it to "
+                    "rebuild") from None
+  _check_cache(cache, path)
+  return cache
+
+
+def _check_cache(cache: Dict[str, np.ndarray], path: str) -> None:
+  """UserError naming the file unless `cache` holds the arrays pack_views makes: points
+  [N, P, 3], weights [N, P], pixel [N, P] (whole numbers below n), accumulation [N, n]."""
+  def bad(problem):
+    raise UserError(f"{path}: not a sample cache ({problem}); delete it to rebuild")
+  keys = set(sample_cache.CACHE_KEYS) | {"accumulation"}
+  if set(cache) != keys:
+    bad(f"holds {', '.join(sorted(cache)) or 'nothing'}, expected {', '.join(sorted(keys))}")
+  if not all(isinstance(v, np.ndarray) for v in cache.values()):
+    bad("a member is not a .npy array")
+  weights, accumulation = cache["weights"], cache["accumulation"]
+  if weights.ndim != 2 or not len(weights) or accumulation.ndim != 2:
+    bad(f"weights {weights.shape}, accumulation {accumulation.shape}")
+  n, p = weights.shape
+  if (cache["points"].shape != (n, p, 3) or cache["pixel"].shape != (n, p)
+      or len(accumulation) != n):
+    bad(f"points {cache['points'].shape}, pixel {cache['pixel'].shape} and accumulation "
+        f"{accumulation.shape} do not fit weights {weights.shape}")
+  for key in ("points", "weights", "accumulation"):
+    if cache[key].dtype.kind != "f" or not np.all(np.isfinite(cache[key])):
+      bad(f"{key} must be finite floats")
+  pixel = cache["pixel"]
+  if pixel.dtype.kind not in "iu" or np.any(pixel < 0) or np.any(pixel >= accumulation.shape[1]):
+    bad("pixel must be whole numbers below the number of pixels")
 
 
 def cache_source(nerf_run) -> str:

@@ -89,10 +89,10 @@ def from_dict(cls: Type[T], values: Dict[str, Any], source: str = "config") -> T
     if factory is not dataclasses.MISSING and dataclasses.is_dataclass(factory):
       clean[name] = from_dict(factory, value, f"{source}: {name}")  # a nested config
       continue
-    if default is not dataclasses.MISSING and default is not None and value is not None:
+    if default is not dataclasses.MISSING and default is not None:
       kind = type(default)
       if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
+        value = float(value) if abs(value) < 2 ** 1024 else value  # (10**400: not a float)
       if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
         raise UserError(f"{source}: {name} should be {kind.__name__}, got {value!r}")
     clean[name] = value
