@@ -47,6 +47,15 @@ def one_line(error: BaseException) -> str:
   return " ".join(str(error).split())
 
 
+def file_problem(error: BaseException) -> str:
+  """What np.load found wrong with a broken file, on one line: the message of the errors a
+  bad file is expected to raise, with the type's name for the others (a broken .npy header
+  raises SyntaxError, TokenError ...)."""
+  if isinstance(error, (ValueError, OSError, EOFError, KeyError)):
+    return one_line(error)
+  return f"{type(error).__name__}: {one_line(error)}"
+
+
 def _to_float(array: np.ndarray, path: str) -> np.ndarray:
   if array.dtype == np.uint8:
     return array.astype(np.float32) / 255.0
@@ -274,12 +283,10 @@ def load_numbers(path: str, what: str = "a valid .npy array") -> np.ndarray:
     array = np.load(path, allow_pickle=False)
   except FileNotFoundError:
     raise UserError(f"{path}: missing") from None
-  except (ValueError, OSError, EOFError) as e:
-    raise UserError(f"{path}: not {what} ({one_line(e)})") from None
-  except (MemoryError, KeyboardInterrupt):
+  except MemoryError:
     raise
   except Exception as e:  # pylint: disable=broad-except  # a broken header: SyntaxError ...
-    raise UserError(f"{path}: not {what} ({type(e).__name__}: {one_line(e)})") from None
+    raise UserError(f"{path}: not {what} ({file_problem(e)})") from None
   if not isinstance(array, np.ndarray):
     array.close()  # (an NpzFile holds the file open)
     raise UserError(f"{path}: not {what} (an .npz archive)")

@@ -14,7 +14,7 @@ from msnerf_jax.core.config import PaintConfig
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.progress import progress_bar
-from msnerf_jax.data.images import cover_crop, one_line, read_style_image
+from msnerf_jax.data.images import cover_crop, file_problem, read_style_image
 from msnerf_jax.models import vgg
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
@@ -64,14 +64,10 @@ def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
         raise UserError(f"{path}: made from the NeRF run {source or '(unknown)'}, not "
                         f"{made_from}; delete it to rebuild")
       cache = {k: saved[k] for k in saved.files if k != "nerf_run"}
-  except UserError:
-    raise
-  except (OSError, ValueError, KeyError, EOFError) as e:
-    raise UserError(f"{path}: not a sample cache ({one_line(e)}); delete it to rebuild") from None
-  except (MemoryError, KeyboardInterrupt):
+  except (UserError, MemoryError):
     raise
   except Exception as e:  # pylint: disable=broad-except  # a broken .npy header: SyntaxError ...
-    raise UserError(f"{path}: not a sample cache ({type(e).__name__}: {one_line(e)}); delete it to "
+    raise UserError(f"{path}: not a sample cache ({file_problem(e)}); delete it to "
                     "rebuild") from None
   _check_cache(cache, path)
   return cache

@@ -319,7 +319,7 @@ def view_of_camera(camera, max_coordinate: float = 1e6) -> Optional[View]:
     position = tuple(float(x) for x in np.asarray(camera.position, np.float64).reshape(3))
     fov, height = float(camera.fov), float(camera.image_height)
     aspect = float(camera.image_width) / height if height > 0 else 1.0
-  except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+  except (TypeError, ValueError, OverflowError):
     return None
   numbers = np.asarray([*wxyz, *position, fov, aspect])
   if (not np.all(np.isfinite(numbers)) or not 1e-3 < fov < math.pi - 1e-3
