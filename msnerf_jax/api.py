@@ -6,7 +6,8 @@ Loading a run and its scene (`load_run`, `scene_of`), its field and sampling con
 (`style_vectors` of a multi-style run, `style_vector_of` any picture, `blend`), painted colour
 fields (`paint` paints styles on a NeRF run, `view_samples` caches a view's samples, `cached_render` renders a colour field from
 them, `deferred_grad`, the style losses `painting_losses`), the configs, and the primitives
-(rays, sampling, volume rendering). Everything here is a pure function of its arguments or a frozen dataclass;
+(rays, sampling, volume rendering); a baked scene (`bake`, `render_baked_image`: density and
+trunk features on bricks in the occupied cells, rendered without the trunk). Everything here is a pure function of its arguments or a frozen dataclass;
 `render_rays` jits and vmaps (over style vectors, for one).
 """
 
@@ -28,6 +29,7 @@ from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import PaintedField
 from msnerf_jax.kinds.painted import render_painted
+from msnerf_jax.nerf.baked import BakedScene, bake, baked_rays, render_baked_image
 from msnerf_jax.nerf.sample_cache import cached_render, deferred_grad, pack_views, view_samples
 from msnerf_jax.style.painting_loss import nnfm, painting_losses, style_target
 from msnerf_jax.train.paint import train as paint
@@ -74,6 +76,8 @@ __all__ = [
     "field_of", "render_run_rays", "render_rays", "render_image", "render_feature_rays",
     "draw_randomness", "flat_rays", "NerfField", "MultistyleField", "FeatureFieldFn",
     "SAMPLERS", "sampler_of",
+    # a baked scene: density and trunk features on bricks, for fast looking
+    "bake", "BakedScene", "baked_rays", "render_baked_image",
     # painted colour fields: cached sample lists, their render, the style losses
     "paint", "PaintedField", "render_painted", "view_samples", "pack_views", "cached_render",
     "deferred_grad", "painting_losses", "nnfm", "style_target",

@@ -374,3 +374,69 @@ def test_segmented_rendering_with_early_termination_equals_one_pass(fast_world):
   assert a["accumulation"].max() > 0.99  # some rays do turn opaque
   for k in ("rgb", "accumulation", "depth"):
     np.testing.assert_allclose(a[k], b[k], atol=3e-4)
+
+
+# ----------------------------------------------------------------------------- baked scenes
+
+
+def _bake(run, resolution=8, components=64):
+  from msnerf_jax.nerf import baked  # pylint: disable=g-import-not-at-top
+  field = NerfField(run.config)
+  geometry = jax.jit(lambda x: field.geometry(run.params["fine"], x))
+  return baked.bake(geometry, run.params["occupancy"], run.config, resolution, components)
+
+
+def test_a_baked_scene_renders_what_the_exact_renderer_does(fast_world):
+  from msnerf_jax.nerf import baked  # pylint: disable=g-import-not-at-top
+  run, scene = msnerf_jax.load_run(fast_world["nerf"]), fast_world["scene"]
+  field = NerfField(run.config)
+  rays = scene.camera_rays(scene.c2w[4])
+  exact = render_lib.render_image(field, run.params, rays, run.config, True, chunk=64)
+  fine = baked.render_baked_image(_bake(run), field, run.params, rays, run.config, True, 64)
+  coarse = baked.render_baked_image(_bake(run, 1, 2), field, run.params, rays, run.config,
+                                    True, 64)
+  assert fine["rgb"].shape == exact["rgb"].shape == (16, 16, 3)
+  assert exact["accumulation"].max() > 0.2  # the view shows something
+  error = lambda out: float(np.abs(out["rgb"] - exact["rgb"]).mean())
+  # Fine bricks and every principal component: the exact render to within 1/255 on average;
+  # one vertex a cell and 2 of 64 components is visibly worse.
+  assert error(fine) < 1 / 255, error(fine)
+  assert error(coarse) > 3 * error(fine), (error(coarse), error(fine))
+  np.testing.assert_allclose(fine["accumulation"], exact["accumulation"], atol=0.02)
+
+
+def test_a_baked_multistyle_sweep_equals_its_single_styles_and_the_exact_sweep(fast_world):
+  from msnerf_jax.models.multistyle import MultistyleField  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.nerf import baked  # pylint: disable=g-import-not-at-top
+  run, scene = msnerf_jax.load_run(fast_world["run"]), fast_world["scene"]
+  vectors = multistyle_kind.style_vectors(run)
+  styles = jnp.asarray(np.stack([vectors["red"], vectors["blue"]]))
+  rays = scene.camera_rays(scene.c2w[4])
+  bake = _bake(msnerf_jax.load_run(fast_world["nerf"]))
+  field = MultistyleField(run.config)
+  sweep = baked.render_baked_image(bake, field, run.params, rays, run.config.nerf, True, 64,
+                                   styles)
+  exact = render_lib.render_image(field, run.params, rays, run.config.nerf, True, chunk=64,
+                                  styles=styles)
+  assert sweep["rgb"].shape == (2, 16, 16, 3) and sweep["depth"].shape == (2, 16, 16)
+  assert float(np.abs(sweep["rgb"] - exact["rgb"]).mean()) < 1 / 255
+  assert float(np.abs(sweep["rgb"][0] - sweep["rgb"][1]).max()) > 1e-3
+  for k in range(2):
+    one = baked.render_baked_image(bake, field, run.params, rays, run.config.nerf, True, 64,
+                                   styles[k:k + 1])
+    np.testing.assert_allclose(sweep["rgb"][k], one["rgb"][0], rtol=1e-4, atol=1e-5)
+
+
+def test_baking_is_deterministic_and_one_compilation_serves_every_image_size(fast_world):
+  from msnerf_jax.nerf import baked  # pylint: disable=g-import-not-at-top
+  run, scene = msnerf_jax.load_run(fast_world["nerf"]), fast_world["scene"]
+  first, second = _bake(run, 4, 8), _bake(run, 4, 8)
+  for a, b in zip(leaves(first), leaves(second)):
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+  field = NerfField(run.config)
+  before = baked._baked_chunk._cache_size()  # pylint: disable=protected-access
+  for size in (5, 16, 23):  # windows of three sizes, 1 to 9 calls of 64 rays
+    rays = scene.bundle(*msnerf_jax.get_rays(size, size, scene.K * size / 16, scene.c2w[4]))
+    out = baked.render_baked_image(first, field, run.params, rays, run.config, True, 64)
+    assert out["rgb"].shape == (size, size, 3)
+  assert baked._baked_chunk._cache_size() - before == 1  # pylint: disable=protected-access

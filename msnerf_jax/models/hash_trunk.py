@@ -6,7 +6,7 @@ Its feature tables are the param `tables` [L, T, F] inside the `trunk` subtree: 
 trunk freezes them, and they get no optimizer state.
 """
 
-from typing import Dict
+from typing import Dict, Optional
 
 import flax.linen as nn
 import jax
@@ -69,21 +69,28 @@ class HashTrunk(nn.Module):
     return self.width
 
   @nn.compact
-  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray) -> Dict[str, jnp.ndarray]:
-    """Args: points [..., 3]; viewdirs [..., 3] or [..., 1, 3] (one per ray).
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray,
+               feature: Optional[jnp.ndarray] = None) -> Dict[str, jnp.ndarray]:
+    """Args: points [..., 3]; viewdirs [..., 3] or [..., 1, 3] (one per ray). With `feature`
+    [..., W] (a `feature` output, e.g. a baked scene's, msnerf_jax.nerf.baked) the points
+    are not read: only the view layers run on it.
 
-    Returns: dict of `sigma` [...] (already non-negative: trunc_exp), `hidden` [..., W] and
-    `view_features` [..., W/2].
+    Returns: dict of `sigma` [...] (already non-negative: trunc_exp), `hidden` [..., W],
+    `feature` [..., W] (what the view layers read) and `view_features` [..., W/2]; with a
+    `feature` given, `view_features` alone.
     """
-    x = encode_in_box(self, points)
-    h = nn.relu(ConcatInputDense(self.width, name="point_0")([x]))
-    sigma = trunc_exp(ConcatInputDense(1, name="density")([h])[..., 0])
-    feature = ConcatInputDense(self.width, name="feature")([h])
+    out = {}
+    if feature is None:
+      x = encode_in_box(self, points)
+      h = nn.relu(ConcatInputDense(self.width, name="point_0")([x]))
+      sigma = trunc_exp(ConcatInputDense(1, name="density")([h])[..., 0])
+      feature = ConcatInputDense(self.width, name="feature")([h])
+      out = {"sigma": sigma, "hidden": h, "feature": feature}
     d = positional_encoding(viewdirs, self.dir_freqs)
     d = jnp.broadcast_to(d, (*feature.shape[:-1], d.shape[-1]))
     view = nn.relu(ConcatInputDense(self.width, name="view")([feature, d]))
     view = nn.relu(ConcatInputDense(self.width // 2, name="view_1")([view]))
-    return {"sigma": sigma, "hidden": h, "view_features": view}
+    return {**out, "view_features": view}
 
 
 def hash_trunk(config) -> HashTrunk:

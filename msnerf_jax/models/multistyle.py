@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from msnerf_jax.nerf import occupancy
 from msnerf_jax.nerf.samplers import sampler_of
 from msnerf_jax.models.hash_trunk import HashTrunk
-from msnerf_jax.models.nerf import NerfTrunk, nerf_trunk
+from msnerf_jax.models.nerf import NerfField, NerfTrunk, nerf_trunk
 
 
 class StyleMLP(nn.Module):
@@ -126,10 +126,7 @@ class MultiStyleMLP(nn.Module):
     chex.assert_rank(points, {3, 4})
     per_style = lambda c: c[:, None, None, :]  # [M, C] -> [M, 1, 1, C]: broadcast over samples.
     out = self.trunk(points, viewdirs)
-    h = nn.relu(self.rgb_hidden(out["view_features"], per_style(codes["rgb"])))
-    for layer in self.rgb_extra:
-      h = nn.relu(layer(h))
-    rgb = nn.sigmoid(self.rgb_out(h))
+    rgb = self._colour(out["view_features"], per_style(codes["rgb"]))
     sigma = out["sigma"]
     if self.density_aware:
       d = nn.relu(self.density_hidden(out["hidden"], per_style(codes["density"])))
@@ -137,6 +134,21 @@ class MultiStyleMLP(nn.Module):
         d = nn.relu(layer(d))
       sigma = self.density_out(d)[..., 0]
     return rgb, sigma
+
+  def _colour(self, view_features: jnp.ndarray, projected: jnp.ndarray) -> jnp.ndarray:
+    """The colour head: view features [..., W/2] + a projected style code (broadcastable)
+    -> rgb [..., 3] in [0, 1]."""
+    h = nn.relu(self.rgb_hidden(view_features, projected))
+    for layer in self.rgb_extra:
+      h = nn.relu(layer(h))
+    return nn.sigmoid(self.rgb_out(h))
+
+  def shade(self, feature: jnp.ndarray, viewdirs: jnp.ndarray,
+            codes: Dict[str, jnp.ndarray]) -> jnp.ndarray:
+    """rgb [M, P, 3] of the trunk's `feature` [P, W] (e.g. a baked scene's) seen along
+    viewdirs [P, 3] in the M styles of `codes` (the view layers, then the colour head)."""
+    view = self.trunk(None, viewdirs, feature)["view_features"]
+    return self._colour(view, codes["rgb"][:, None, :])
 
 
 def multistyle_mlp(config) -> MultiStyleMLP:
@@ -162,6 +174,16 @@ class MultistyleField:
   def __call__(self, params, points, viewdirs, codes):
     """points [R, S, 3] or [M, R, S, 3] -> rgb [M, R, S, 3], raw sigma (see MultiStyleMLP)."""
     return multistyle_mlp(self.config).apply({"params": params}, points, viewdirs, codes)
+
+  def geometry(self, params, points):
+    """Density [...] and trunk `feature` [..., W] at points (the frozen trunk's: NerfField's)."""
+    return NerfField(self.config.nerf).geometry(params, points)
+
+  def shade(self, params, feature, viewdirs, codes):
+    """rgb [M, P, 3] of trunk features [P, W] along viewdirs [P, 3] in the styles of `codes`
+    (MultiStyleMLP.shade)."""
+    model = multistyle_mlp(self.config)
+    return model.apply({"params": params}, feature, viewdirs, codes, method=model.shade)
 
 
 def init_multistyle_params(config, key: jax.Array,

@@ -2,7 +2,7 @@
 `NerfField`, the MLP as the field the renderer (msnerf_jax.nerf.render) draws."""
 
 import dataclasses
-from typing import Any, Dict, Tuple, Union
+from typing import Any, Dict, Optional, Tuple, Union
 
 import flax.linen as nn
 import jax
@@ -36,25 +36,31 @@ class NerfTrunk(nn.Module):
                          else 0)
 
   @nn.compact
-  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray) -> Dict[str, jnp.ndarray]:
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray,
+               feature: Optional[jnp.ndarray] = None) -> Dict[str, jnp.ndarray]:
     """Args: points [..., 3]; viewdirs [..., 3] (unit), or [..., 1, 3] (one per ray,
-    encoded once and broadcast over the samples).
+    encoded once and broadcast over the samples). With `feature` [..., W] (a `feature`
+    output, e.g. a baked scene's) the points are not read: only the view layer runs.
 
     Returns: dict of raw density `sigma` [...] (before activation), `hidden` [..., W]
-    (last point layer) and `view_features` [..., W/2].
+    (last point layer), `feature` [..., W] (what the view layer reads) and `view_features`
+    [..., W/2]; with a `feature` given, `view_features` alone.
     """
-    x = positional_encoding(points, self.pos_freqs)
-    parts = [x]  # the layer input, as the parts of its concatenation.
-    for i in range(self.depth):
-      h = nn.relu(ConcatInputDense(self.width, name=f"point_{i}")(parts))
-      parts = [x, h] if i == self.skip_layer else [h]
-    sigma = ConcatInputDense(1, name="density")(parts)[..., 0]
-    feature = ConcatInputDense(self.width, name="feature")(parts)
+    out = {}
+    if feature is None:
+      x = positional_encoding(points, self.pos_freqs)
+      parts = [x]  # the layer input, as the parts of its concatenation.
+      for i in range(self.depth):
+        h = nn.relu(ConcatInputDense(self.width, name=f"point_{i}")(parts))
+        parts = [x, h] if i == self.skip_layer else [h]
+      sigma = ConcatInputDense(1, name="density")(parts)[..., 0]
+      feature = ConcatInputDense(self.width, name="feature")(parts)
+      hidden = parts[0] if len(parts) == 1 else jnp.concatenate(parts, -1)
+      out = {"sigma": sigma, "hidden": hidden, "feature": feature}
     d = positional_encoding(viewdirs, self.dir_freqs)
     d = jnp.broadcast_to(d, (*feature.shape[:-1], d.shape[-1]))
     view = nn.relu(ConcatInputDense(self.width // 2, name="view")([feature, d]))
-    hidden = parts[0] if len(parts) == 1 else jnp.concatenate(parts, -1)
-    return {"sigma": sigma, "hidden": hidden, "view_features": view}
+    return {**out, "view_features": view}
 
 
 class NerfMLP(nn.Module):
@@ -65,12 +71,14 @@ class NerfMLP(nn.Module):
   trunk: Union[NerfTrunk, HashTrunk]
 
   @nn.compact
-  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray
-               ) -> Tuple[jnp.ndarray, jnp.ndarray]:
-    """Args: points [..., 3], viewdirs [..., 3]. Returns rgb [..., 3] in [0, 1], raw sigma [...]."""
-    out = self.trunk(points, viewdirs)
+  def __call__(self, points: jnp.ndarray, viewdirs: jnp.ndarray,
+               feature: Optional[jnp.ndarray] = None) -> Tuple[jnp.ndarray, jnp.ndarray]:
+    """Args: points [..., 3], viewdirs [..., 3]; or a trunk `feature` [..., W] instead of
+    the points (the trunk's). Returns rgb [..., 3] in [0, 1], raw sigma [...] (None with a
+    `feature`)."""
+    out = self.trunk(points, viewdirs, feature)
     rgb = nn.sigmoid(ConcatInputDense(3, name="rgb")([out["view_features"]]))
-    return rgb, out["sigma"]
+    return rgb, out.get("sigma")
 
 
 def nerf_trunk(config) -> Union[NerfTrunk, HashTrunk]:
@@ -94,6 +102,18 @@ class NerfField:
 
   def __call__(self, params, points, viewdirs):
     return nerf_mlp(self.config).apply({"params": params}, points, viewdirs)
+
+  def geometry(self, params, points):
+    """Density (activated, >= 0) [...] and trunk `feature` [..., W] at points [..., 3]: what
+    a baked scene stores (msnerf_jax.nerf.baked)."""
+    out = nerf_trunk(self.config).apply({"params": params["trunk"]}, points, points)
+    return jax.nn.relu(out["sigma"]), out["feature"]
+
+  def shade(self, params, feature, viewdirs, conditioning=None):
+    """rgb [P, 3] of trunk features [P, W] seen along viewdirs [P, 3] (the view layers and
+    the rgb layer: the field's colour where its trunk gave `feature`)."""
+    del conditioning  # a NeRF has one colour.
+    return nerf_mlp(self.config).apply({"params": params}, None, viewdirs, feature)[0]
 
 
 def init_nerf_params(config, key: jax.Array) -> Dict[str, Dict]:

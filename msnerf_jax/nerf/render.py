@@ -205,13 +205,13 @@ def render_image(field_fn: FieldFn, params, rays: Dict[str, jnp.ndarray], config
     out = sampler.render_piece(functools.partial(_render_call, field_fn), params, host_state,
                                config, white_background, mesh, piece, styles)
     done = out["complete"][:size]
-    _keep_complete(outputs, out, take, done, n, axis)
+    keep_complete(outputs, out, take, done, n, axis)
     pending = np.concatenate([take[~done], pending])
   return {k: joined.reshape(*joined.shape[:axis], *shape, *joined.shape[axis + 1:])
           for k, joined in outputs.items()}
 
 
-def _keep_complete(outputs: Dict[str, np.ndarray], out: Dict[str, np.ndarray],
+def keep_complete(outputs: Dict[str, np.ndarray], out: Dict[str, np.ndarray],
                    take: np.ndarray, done: np.ndarray, n: int, axis: int) -> None:
   """Writes the complete rays (`done`) of one call's outputs (its first take.size rays, the
   ray axis at `axis`) into `outputs` [..., n, ...] at their indices `take`."""
