@@ -29,7 +29,8 @@ from msnerf_jax.models.multistyle import MultistyleField
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import PaintedField
 from msnerf_jax.kinds.painted import render_painted
-from msnerf_jax.nerf.baked import BakedScene, bake, baked_rays, render_baked_image
+from msnerf_jax.nerf.baked import (BakedScene, bake, heavy_samples, render_baked_image,
+                                   shade_samples)
 from msnerf_jax.nerf.sample_cache import cached_render, deferred_grad, pack_views, view_samples
 from msnerf_jax.style.painting_loss import nnfm, painting_losses, style_target
 from msnerf_jax.train.paint import train as paint
@@ -77,7 +78,7 @@ __all__ = [
     "draw_randomness", "flat_rays", "NerfField", "MultistyleField", "FeatureFieldFn",
     "SAMPLERS", "sampler_of",
     # a baked scene: density and trunk features on bricks, for fast looking
-    "bake", "BakedScene", "baked_rays", "render_baked_image",
+    "bake", "BakedScene", "render_baked_image", "heavy_samples", "shade_samples",
     # painted colour fields: cached sample lists, their render, the style losses
     "paint", "PaintedField", "render_painted", "view_samples", "pack_views", "cached_render",
     "deferred_grad", "painting_losses", "nnfm", "style_target",

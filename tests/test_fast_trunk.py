@@ -434,9 +434,75 @@ def test_baking_is_deterministic_and_one_compilation_serves_every_image_size(fas
   for a, b in zip(leaves(first), leaves(second)):
     assert np.array_equal(np.asarray(a), np.asarray(b))
   field = NerfField(run.config)
-  before = baked._baked_chunk._cache_size()  # pylint: disable=protected-access
+  calls = (baked._geometry_call, baked._shade_call)  # pylint: disable=protected-access
+  before = [call._cache_size() for call in calls]  # pylint: disable=protected-access
   for size in (5, 16, 23):  # windows of three sizes, 1 to 9 calls of 64 rays
     rays = scene.bundle(*msnerf_jax.get_rays(size, size, scene.K * size / 16, scene.c2w[4]))
-    out = baked.render_baked_image(first, field, run.params, rays, run.config, True, 64)
+    out = baked.render_baked_image(first, field, run.params, rays, run.config, True, 64,
+                                   shade_chunk=128)
     assert out["rgb"].shape == (size, size, 3)
-  assert baked._baked_chunk._cache_size() - before == 1  # pylint: disable=protected-access
+  after = [call._cache_size() for call in calls]  # pylint: disable=protected-access
+  assert [a - b for a, b in zip(after, before)] == [1, 1]
+
+
+def test_a_runs_bake_is_saved_reused_rebaked_when_the_run_changed_and_bad_files_named(
+    fast_world, tmp_path, capsys):
+  import shutil  # pylint: disable=g-import-not-at-top
+  from msnerf_jax import cli  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import baked as baked_run  # pylint: disable=g-import-not-at-top
+  run_dir = str(tmp_path / "nerf")
+  shutil.copytree(fast_world["nerf"], run_dir)
+  run = msnerf_jax.load_run(run_dir)
+  lines = []
+  first = baked_run.baked_scene(run, lines.append)
+  path = os.path.join(run_dir, baked_run.BAKED_FILE)
+  assert os.path.exists(path) and len(lines) == 1 and "baked" in lines[0]
+  data = open(path, "rb").read()
+  again = baked_run.baked_scene(run, lines.append)  # reused: nothing baked, nothing written
+  assert len(lines) == 1 and open(path, "rb").read() == data
+  for a, b in zip(leaves(first), leaves(again)):
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+  os.remove(path)  # baking again gives the same file
+  baked_run.baked_scene(run, lines.append)
+  assert open(path, "rb").read() == data
+  # The run trained further (its trunk changed): baked again, said so.
+  trunk = run.params["fine"]["trunk"]
+  changed = dataclasses.replace(run, params={**run.params, "fine": {**run.params["fine"], "trunk": {
+      **trunk, "density": {**trunk["density"], "bias": trunk["density"]["bias"] + 1.0}}}})
+  baked_run.baked_scene(changed, lines.append)
+  assert "another state" in lines[-2] and open(path, "rb").read() != data
+  # Truncated or foreign files: one line, exit code 2, through the CLI.
+  out = str(tmp_path / "video")
+  for bad in (data[:len(data) // 2], b"not a bake", open(os.path.join(
+      fast_world["nerf"], "run.json"), "rb").read()):
+    with open(path, "wb") as f:
+      f.write(bad)
+    assert cli.main(["nerf", "render", "--run", run_dir, "--out", out, "--frames", "2",
+                     "--fast"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"msnerf: error: {path}: not a baked scene"), err
+  os.remove(path)
+  assert cli.main(["nerf", "render", "--run", run_dir, "--out", out, "--frames", "2",
+                   "--fast"]) == 0
+  assert os.path.exists(out + ".mp4") and os.path.exists(path)
+
+
+def test_the_viewer_draws_a_fast_run_from_its_bake(fast_world, tmp_path):
+  import shutil  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import baked as baked_run  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.viewer.frames import Frames, Request  # pylint: disable=g-import-not-at-top
+  run_dir = str(tmp_path / "ms")
+  shutil.copytree(fast_world["run"], run_dir)
+  run, scene = msnerf_jax.load_run(run_dir), fast_world["scene"]
+  fast = Frames(run, scene, report=lambda line: None)
+  exact = Frames(run, scene, exact=True)
+  assert fast.baked is not None and exact.baked is None
+  assert os.path.exists(os.path.join(run_dir, baked_run.BAKED_FILE))
+  request = fast.start_request()
+  for level in ("low", "full"):
+    a = fast.render(request, level).astype(float)
+    b = exact.render(request, level).astype(float)
+    assert a.shape == b.shape and np.abs(a - b).mean() < 6, (level, np.abs(a - b).mean())
+  other = Request(request.view, fast.styles["blue"])  # another style, drawn as exactly
+  a, b = fast.render(other, "full").astype(float), exact.render(other, "full").astype(float)
+  assert np.abs(a - b).mean() < 6

@@ -3,7 +3,7 @@
 
 Usage:
   python experiments/benchmarks/bench_render.py --run RUN [--views 8] [--resolution 4]
-      [--components 16] [--chunk 8192] [--name lego]
+      [--components 16] [--chunk 4096] [--name lego]
 
 RUN is a NeRF run with the occupancy-grid sampler (the `fast` preset). The scene is baked
 once (timed; its arrays' size printed, and the size of the float16 .npz they would make),
@@ -51,7 +51,7 @@ def main():
   parser.add_argument("--views", type=int, default=8)
   parser.add_argument("--resolution", type=int, default=4)
   parser.add_argument("--components", type=int, default=16)
-  parser.add_argument("--chunk", type=int, default=8192)
+  parser.add_argument("--chunk", type=int, default=4096)
   parser.add_argument("--name", default=None)
   args = parser.parse_args()
   print(machine())
@@ -91,8 +91,9 @@ def main():
           f"{rows[-1][3]:.2f} dB, mean |exact - fast| {rows[-1][4] * 255:.2f}/255")
   exact_s, fast_s, psnr_exact, psnr_fast, _ = (np.array(c) for c in zip(*rows))
   name = args.name or run.record.get("data", {}).get("path", args.run).rstrip("/").split("/")[-1]
-  print(f"compilations: exact renderer {render_lib._render_chunk._cache_size()}, "  # pylint: disable=protected-access
-        f"baked {baked._baked_chunk._cache_size()}")  # pylint: disable=protected-access
+  # pylint: disable=protected-access
+  print(f"compilations: exact renderer {render_lib._render_chunk._cache_size()}, baked "
+        f"{baked._geometry_call._cache_size() + baked._shade_call._cache_size()}")
   print(f"{name}: exact {np.median(exact_s):.3f} s, fast {np.median(fast_s):.3f} s, speedup "
         f"{np.median(exact_s) / np.median(fast_s):.1f}x, PSNR exact {psnr_exact.mean():.2f} dB "
         f"fast {psnr_fast.mean():.2f} dB")

@@ -7,7 +7,8 @@ import time
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.cli.common import (add_camera_path_arguments, add_parallel_arguments,
+from msnerf_jax.cli.common import (add_camera_path_arguments, add_fast_argument,
+                                   add_parallel_arguments,
                                    check_path_options, load_run_and_scene, output_stem,
                                    print_summary, print_training_summary, render_cameras,
                                    start_processes)
@@ -81,6 +82,7 @@ def _register_render(verbs, formatter):
   p.add_argument("--out", required=True, help="output file stem (.mp4/.gif are added)")
   add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  add_fast_argument(p)
   p.set_defaults(func=cmd_render)
 
 
@@ -176,14 +178,18 @@ def cmd_render(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.core.progress import progress_bar
   from msnerf_jax.data import video
+  from msnerf_jax.kinds.baked import baked_views
   from msnerf_jax.kinds.views import render_view
   run, scene = _load(args.run)
   poses, fps, size = render_cameras(scene, args)
   stem = output_stem(args.out)
+  draw = lambda c2w: render_view(scene, run.params, run.config, c2w, args.chunk)
+  if getattr(args, "fast", False):
+    draw = baked_views(run, scene)
   t0 = time.time()
   frames, depths = [], []
   for c2w in progress_bar(poses, desc="rendering"):
-    out = render_view(scene, run.params, run.config, c2w, args.chunk)
+    out = draw(c2w)
     frames.append(out["rgb"])
     depths.append(out)
   # One depth scale for the whole video.

@@ -3,9 +3,9 @@ any run kind with styles (a NeRF run: as `msnerf nerf render`)."""
 
 import time
 
-from msnerf_jax.cli.common import (add_camera_path_arguments, add_grids_argument,
-                                   load_run_and_scene, output_stem, print_summary,
-                                   render_cameras)
+from msnerf_jax.cli.common import (add_camera_path_arguments, add_fast_argument,
+                                   add_grids_argument, load_run_and_scene, output_stem,
+                                   print_summary, render_cameras)
 from msnerf_jax.core.errors import UserError
 
 
@@ -41,6 +41,7 @@ def register(commands, formatter):
   add_grids_argument(p)
   add_camera_path_arguments(p)
   p.add_argument("--chunk", type=int, default=None, help="rays per rendering call")
+  add_fast_argument(p)
   p.set_defaults(func=cmd_render)
 
 
@@ -50,6 +51,7 @@ def cmd_render(args):
   from msnerf_jax.style import vectors as styles_lib
   from msnerf_jax.cli import nerf as nerf_cli
   from msnerf_jax.kinds.registry import get_kind
+  from msnerf_jax.kinds.baked import baked_views
   from msnerf_jax.kinds.renderers import style_rendering
   from msnerf_jax.kinds.runs import read_run_file
   kind = get_kind(read_run_file(args.run)["kind"])
@@ -63,6 +65,9 @@ def cmd_render(args):
   run, scene = load_run_and_scene(args.run, kind.name)
   # A painting kind's "original" is the scene's own statistics: --strength blends towards it.
   vectors, size, renderer = style_rendering(run, scene, args.chunk, args.grids, args.decoder)
+  if args.fast:
+    draw = baked_views(run, scene)
+    renderer = lambda camera, styles: draw(camera, styles)["rgb"]
   cache = {}
   main, label = styles_lib.choose_main_style(vectors, cache, args.run, args.style, args.interp,
                                              args.t, args.strength, size)

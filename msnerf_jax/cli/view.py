@@ -32,6 +32,10 @@ def register(commands, formatter):
                       "to share it, e.g. 0.0.0.0")
   p.add_argument("--out", default=None,
                  help="folder of saved views and keyframes (default RUN/viewer)")
+  p.add_argument("--exact", action="store_true",
+                 help="draw with the exact renderer; by default a NeRF or multi-style run on "
+                      "the occupancy grid (the fast preset) is drawn from its baked scene "
+                      "(RUN/baked.npz, baked on first use)")
   p.set_defaults(func=cmd_view)
 
 
@@ -46,7 +50,7 @@ def cmd_view(args):
   print(f"msnerf view: loading {args.run}")
   viewer = server.open_viewer(args.run, args.out, args.host, args.port,
                               style_paths=args.styles, decoder_dir=args.decoder,
-                              grids=args.grids)
+                              grids=args.grids, exact=args.exact)
   where = ("this machine only" if server.is_loopback(args.host)
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "

@@ -145,10 +145,12 @@ class MultiStyleMLP(nn.Module):
 
   def shade(self, feature: jnp.ndarray, viewdirs: jnp.ndarray,
             codes: Dict[str, jnp.ndarray]) -> jnp.ndarray:
-    """rgb [M, P, 3] of the trunk's `feature` [P, W] (e.g. a baked scene's) seen along
-    viewdirs [P, 3] in the M styles of `codes` (the view layers, then the colour head)."""
+    """rgb [M, ..., 3] of the trunk's `feature` [..., W] (e.g. a baked scene's) seen along
+    viewdirs [..., 3] (or broadcastable: [R, 1, 3] for [R, S, W] features) in the M styles
+    of `codes` (the view layers, then the colour head)."""
     view = self.trunk(None, viewdirs, feature)["view_features"]
-    return self._colour(view, codes["rgb"][:, None, :])
+    code = codes["rgb"]
+    return self._colour(view, code.reshape(code.shape[0], *([1] * (view.ndim - 1)), -1))
 
 
 def multistyle_mlp(config) -> MultiStyleMLP:
@@ -180,7 +182,7 @@ class MultistyleField:
     return NerfField(self.config.nerf).geometry(params, points)
 
   def shade(self, params, feature, viewdirs, codes):
-    """rgb [M, P, 3] of trunk features [P, W] along viewdirs [P, 3] in the styles of `codes`
+    """rgb [M, ..., 3] of trunk features [..., W] along viewdirs [..., 3] in the styles of `codes`
     (MultiStyleMLP.shade)."""
     model = multistyle_mlp(self.config)
     return model.apply({"params": params}, feature, viewdirs, codes, method=model.shade)

@@ -110,7 +110,7 @@ class NerfField:
     return jax.nn.relu(out["sigma"]), out["feature"]
 
   def shade(self, params, feature, viewdirs, conditioning=None):
-    """rgb [P, 3] of trunk features [P, W] seen along viewdirs [P, 3] (the view layers and
+    """rgb [..., 3] of trunk features [..., W] seen along viewdirs [..., 3] (the view layers and
     the rgb layer: the field's colour where its trunk gave `feature`)."""
     del conditioning  # a NeRF has one colour.
     return nerf_mlp(self.config).apply({"params": params}, None, viewdirs, feature)[0]

@@ -9,12 +9,14 @@ matters). At each vertex: the density (activated, >= 0) and the trunk's `feature
 its view layers read), the latter as `components` principal components (PCA over the
 scene's vertices): feature = mean + coefficients @ basis.
 
-Rendering (`baked_rays`): the rays are marched exactly as the occupancy-grid sampler marches
-them (occupancy.march: the same sample positions), each sample's density is the trilinear
-interpolation of its brick's vertices, the compositing weights follow; only the samples
-whose weight exceeds `threshold` are shaded (features interpolated, decoded, the field's
-view and colour layers applied), and each ray's kept weights are scaled back to its full
-opacity. Everything is a pure function of a BakedScene pytree: it jits and vmaps.
+Rendering: heavy_samples marches the rays exactly as the occupancy-grid sampler does
+(occupancy.march in the baked cells: the same sample positions), interpolates each sample's
+density in its brick and composites; only the samples heavier than THRESHOLD are shaded
+(shade_samples: the feature interpolated and decoded, the field's own view and colour layers
+applied, for any style vectors of a multi-style field), each ray's shaded weights scaled to
+its full opacity. Both are pure functions of a BakedScene pytree (they jit); the image
+driver render_baked_image calls them in fixed sizes (one compilation each, whatever the
+image size). Measured against the exact renderer: experiments/benchmarks/bench_render.py.
 """
 
 import functools
@@ -27,11 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.nerf import occupancy
-from msnerf_jax.nerf.render import flat_rays, keep_complete, padded
-from msnerf_jax.nerf.volume_rendering import disparity_of, ray_starts, segment_cumsum
+from msnerf_jax.nerf.render import flat_rays, padded
+from msnerf_jax.nerf.volume_rendering import disparity_of
 
-THRESHOLD = 1e-3  # samples lighter than this in a composite are not shaded.
-SHADE_SHARE = 4  # a call shades at most budget // SHADE_SHARE samples.
+THRESHOLD = 3e-3  # samples lighter than this in a composite are not shaded.
 
 
 @flax.struct.dataclass
@@ -104,7 +105,8 @@ def bake(geometry: Callable, occupancy_values, config, resolution: int = 4,
   side = resolution + 1
   return BakedScene(index=index, density=density.reshape(-1, side, side, side),
                     coefficients=coefficients.reshape(-1, side, side, side, basis.shape[0]),
-                    basis=basis, mean=mean, bound=float(config.scene_box))
+                    basis=basis, mean=mean,
+                    bound=float(config.scene_box))
 
 
 def principal_components(features: np.ndarray, components: int, sample: int = 1 << 17):
@@ -122,60 +124,65 @@ def principal_components(features: np.ndarray, components: int, sample: int = 1 
   return mean.astype(np.float32), basis.astype(np.float32)
 
 
-def _corners(baked: BakedScene, points: jnp.ndarray):
-  """(flat vertex rows [P, 8], trilinear weights [P, 8], inside an occupied cell [P]) of
-  points [P, 3]: the 8 vertices of each point's sub-cell in its brick."""
+def _interpolate(baked: BakedScene, table: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
+  """Trilinear interpolation [P, C] at points [P, 3] of `table` [N * S^3, C] (one row per
+  brick vertex, bricks in the order of baked.index), 0 outside the baked cells: the 8
+  vertices of each point's sub-cell are 8 row gathers, blended by 7 lerps."""
   grid, b = baked.index.shape[0], baked.resolution
   side = b + 1
-  unit = (points + baked.bound) / (2.0 * baked.bound) * grid
-  cell = jnp.clip(jnp.floor(unit), 0, grid - 1).astype(jnp.int32)
-  brick = baked.index[cell[:, 0], cell[:, 1], cell[:, 2]]
+  unit = (points + baked.bound) * (grid / (2.0 * baked.bound))
+  cell = jnp.clip(jnp.floor(unit), 0, grid - 1)
+  inside = jnp.all((unit >= 0.0) & (unit <= grid), -1)
+  icell = cell.astype(jnp.int32)
+  brick = baked.index[icell[:, 0], icell[:, 1], icell[:, 2]]
   local = jnp.clip(unit - cell, 0.0, 1.0) * b
-  low = jnp.clip(jnp.floor(local), 0, b - 1).astype(jnp.int32)
-  frac = local - low
-  base = (jnp.maximum(brick, 0) * side ** 3 + low[:, 0] * side * side + low[:, 1] * side
+  low = jnp.minimum(jnp.floor(local), b - 1)
+  f = (local - low)[:, :, None]
+  low = low.astype(jnp.int32)
+  base = (jnp.maximum(brick, 0) * side ** 3 + low[:, 0] * (side * side) + low[:, 1] * side
           + low[:, 2])
-  rows, weights = [], []
-  for dx in (0, 1):
-    for dy in (0, 1):
-      for dz in (0, 1):
-        rows.append(base + dx * side * side + dy * side + dz)
-        weights.append((frac[:, 0] if dx else 1.0 - frac[:, 0])
-                       * (frac[:, 1] if dy else 1.0 - frac[:, 1])
-                       * (frac[:, 2] if dz else 1.0 - frac[:, 2]))
-  return jnp.stack(rows, -1), jnp.stack(weights, -1), brick >= 0
+  at = lambda dx, dy, dz: table[base + (dx * side * side + dy * side + dz)]
+  lerp = lambda a, c, w: a + w * (c - a)
+  z = [[lerp(at(dx, dy, 0), at(dx, dy, 1), f[:, 2]) for dy in (0, 1)] for dx in (0, 1)]
+  y = [lerp(z[dx][0], z[dx][1], f[:, 1]) for dx in (0, 1)]
+  value = lerp(y[0], y[1], f[:, 0])
+  return jnp.where((inside & (brick >= 0))[:, None], value, 0.0)
 
 
 def density_at(baked: BakedScene, points: jnp.ndarray) -> jnp.ndarray:
   """[P] the baked density at points [P, 3] (0 outside the baked cells)."""
-  rows, weights, inside = _corners(baked, points)
-  values = baked.density.reshape(-1)[rows]
-  return jnp.where(inside, jnp.sum(weights * values, -1), 0.0)
+  return _interpolate(baked, baked.density.reshape(-1, 1), points)[:, 0]
 
 
 def feature_at(baked: BakedScene, points: jnp.ndarray) -> jnp.ndarray:
   """[P, W] the baked trunk feature at points [P, 3]."""
-  rows, weights, _ = _corners(baked, points)
   table = baked.coefficients.reshape(-1, baked.coefficients.shape[-1])
-  coefficients = jnp.einsum("pc,pck->pk", weights, table[rows])
-  return baked.mean + coefficients @ baked.basis
+  return baked.mean + _interpolate(baked, table, points) @ baked.basis
 
 
-def baked_rays(baked: BakedScene, shade: Callable, rays: Dict[str, jnp.ndarray], config,
-               budget: int, white_background: bool = False,
-               threshold: float = THRESHOLD) -> Dict[str, jnp.ndarray]:
-  """Renders rays [R] from a baked scene.
+def ray_cumsum(values: jnp.ndarray, ray: jnp.ndarray, step: jnp.ndarray, n_rays: int,
+               n_steps: int) -> jnp.ndarray:
+  """Each packed sample's running sum along its ray (volume_rendering.segment_cumsum's):
+  values [B] of rays `ray` [B] (n_rays: empty) at steps `step` [B] are scattered into a
+  dense [n_rays + 1, n_steps] array, summed along the steps and gathered back. (As fast as
+  the scan alone, and the scatter keeps XLA from fusing, and so recomputing, the values'
+  producer into each of the scan's levels.)"""
+  index = ray * n_steps + step
+  dense = jnp.zeros(((n_rays + 1) * n_steps,), values.dtype).at[index].add(values)
+  return jnp.cumsum(dense.reshape(n_rays + 1, n_steps), 1).reshape(-1)[index]
 
-  Args:
-    baked: the BakedScene.
-    shade: `(feature [P, W], viewdirs [P, 3]) -> rgb [*L, P, 3]` (the field's view and
-      colour layers with its params, and style codes if any, bound: L = [M] styles).
-    rays: ray_bundle [R] (may carry "alive").
-    config: the NerfConfig (march_steps, scene_box).
-    budget: sample slots of the march (static); at most budget // SHADE_SHARE are shaded.
-  Returns:
-    {"rgb": [*L, R, 3], "depth", "disparity", "accumulation": [R], "complete": [R] bool
-    (False: the ray's samples did not fit the budgets; render it again in a smaller call)}.
+
+def heavy_samples(baked: BakedScene, rays: Dict[str, jnp.ndarray], config, budget: int,
+                  threshold: float = THRESHOLD) -> Dict[str, jnp.ndarray]:
+  """The geometry of rays [R] from a baked scene: the occupancy-grid sampler's samples
+  (occupancy.march in the baked cells), their density
+  interpolated in the bricks, composited; the samples heavier than `threshold` packed first
+  (the ones worth shading), each ray's weights scaled so that its shaded ones sum to its
+  opacity.
+
+  Returns: {"points": [budget, 3], "weights": [budget], "ray": [budget] (R: an empty slot),
+  "count": [] int32 (how many slots are used), "accumulation", "depth": [R], "complete":
+  [R] bool (the ray's samples fit the budget)}.
   """
   chex.assert_rank(rays["origins"], 2)
   n = rays["origins"].shape[0]
@@ -184,51 +191,54 @@ def baked_rays(baked: BakedScene, shade: Callable, rays: Dict[str, jnp.ndarray],
   safe = jnp.minimum(ray, n - 1)
   points = rays["origins"][safe] + rays["directions"][safe] * samples["t"][:, None]
   tau = jnp.where(samples["valid"], density_at(baked, points) * samples["delta"], 0.0)
-  trans = jnp.exp(-(segment_cumsum(tau, ray_starts(ray)) - tau))
+  trans = jnp.exp(-(ray_cumsum(tau, ray, samples["step"], n, config.march_steps) - tau))
   weights = trans * (1.0 - jnp.exp(-tau))
-  per_ray = lambda x: jax.ops.segment_sum(x, ray, n + 1, indices_are_sorted=True)[:n]
+  per_ray = lambda x, r=ray: jax.ops.segment_sum(x, r, n + 1, indices_are_sorted=True)[:n]
   acc = per_ray(weights)
-  depth = per_ray(weights * samples["t"])
   heavy = weights > threshold
-  shaded = budget // SHADE_SHARE
-  pick = jnp.nonzero(heavy, size=shaded, fill_value=budget)[0]
-  got = pick < budget
-  pick = jnp.minimum(pick, budget - 1)
-  pick_ray = jnp.where(got, ray[pick], n)
-  pick_weight = jnp.where(got, weights[pick], 0.0)
-  kept = jax.ops.segment_sum(pick_weight, pick_ray, n + 1, indices_are_sorted=True)[:n]
-  scale = jnp.where(kept > 0, acc / jnp.maximum(kept, 1e-10), 0.0)
-  rgb = shade(feature_at(baked, points[pick]), rays["viewdirs"][jnp.minimum(pick_ray, n - 1)])
-  w = (pick_weight * jnp.append(scale, 0.0)[pick_ray])[:, None]
-  colour = jnp.moveaxis(jax.ops.segment_sum(jnp.moveaxis(w * rgb, -2, 0), pick_ray, n + 1,
-                                            indices_are_sorted=True)[:n], 0, -2)
-  if white_background:
-    colour = colour + (1.0 - acc)[:, None]
-  fits = jnp.cumsum(jax.ops.segment_sum(heavy.astype(jnp.int32), ray, n + 1,
-                                        indices_are_sorted=True)[:n]) <= shaded
-  return {"rgb": colour, "depth": depth, "disparity": disparity_of(depth, acc),
-          "accumulation": acc, "complete": samples["complete"] & fits}
+  pick = jnp.nonzero(heavy, size=budget, fill_value=budget - 1)[0]
+  count = jnp.sum(heavy, dtype=jnp.int32)
+  used = jnp.arange(budget) < count
+  pick_ray = jnp.where(used, ray[pick], n)
+  pick_weight = jnp.where(used, weights[pick], 0.0)
+  kept = per_ray(pick_weight, pick_ray)
+  scale = jnp.append(jnp.where(kept > 0, acc / jnp.maximum(kept, 1e-10), 0.0), 0.0)
+  return {"points": points[pick], "weights": pick_weight * scale[pick_ray], "ray": pick_ray,
+          "count": count, "accumulation": acc, "depth": per_ray(weights * samples["t"]),
+          "complete": samples["complete"]}
 
 
-@functools.partial(jax.jit, static_argnums=(1, 4, 5, 6))
-def _baked_chunk(baked, field, params, styles, config, budget, white_background, rays):
+def shade_samples(baked: BakedScene, shade: Callable, points: jnp.ndarray, weights: jnp.ndarray,
+                  viewdirs: jnp.ndarray) -> jnp.ndarray:
+  """Weighted colours [*L, P, 3] of samples at points [P, 3] with weights [P] seen along
+  viewdirs [P, 3]: the baked feature decoded, then `shade` (feature [P, W], viewdirs
+  [P, 3]) -> rgb [*L, P, 3] (the field's view and colour layers; L = [M] styles or none)."""
+  return weights[:, None] * shade(feature_at(baked, points), viewdirs)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _geometry_call(baked, config, budget, rays):
+  return heavy_samples(baked, rays, config, budget)
+
+
+@functools.partial(jax.jit, static_argnums=(1,))
+def _shade_call(baked, field, params, styles, points, weights, viewdirs):
   codes = None if styles is None else field.codes(params["fine"], styles)
-  out = baked_rays(baked, lambda f, d: field.shade(params["fine"], f, d, codes), rays, config,
-                   budget, white_background)
-  if styles is not None:  # every output with the styles first, as render_image's.
-    m = styles.shape[0]
-    out = {k: v if k in ("rgb", "complete") else jnp.broadcast_to(v, (m, *v.shape))
-           for k, v in out.items()}
-  return out
+  return shade_samples(baked, lambda f, d: field.shade(params["fine"], f, d, codes), points,
+                       weights, viewdirs)
 
 
 def render_baked_image(baked: BakedScene, field, params, rays: Dict[str, jnp.ndarray], config,
-                       white_background: bool = False, chunk: int = 1 << 14,
-                       styles: Optional[jnp.ndarray] = None) -> Dict[str, np.ndarray]:
-  """render.render_image's outputs from a baked scene: rays of any leading shape [...] in
-  fixed calls of `chunk` rays (one compilation per chunk size and field, whatever the
-  image size), each with a budget of chunk x config.samples_per_ray samples; a ray that
-  does not fit goes again at the front of a later call.
+                       white_background: bool = False, chunk: int = 1 << 12,
+                       styles: Optional[jnp.ndarray] = None, shade_chunk: int = 1 << 13,
+                       per_ray: Optional[int] = None) -> Dict[str, np.ndarray]:
+  """render.render_image's outputs from a baked scene: rays of any leading shape [...].
+
+  The rays go through heavy_samples in fixed calls of `chunk` rays (a budget of chunk x
+  per_ray samples, per_ray default half of config.samples_per_ray: a ray that does not fit
+  goes again at the front of a later call), the heavy samples through the field's view and
+  colour layers in fixed calls of `shade_chunk` samples: one compilation each, whatever the
+  image size.
 
   Args:
     field: a field with `shade` (and `codes` with `styles`): NerfField, MultistyleField.
@@ -239,17 +249,37 @@ def render_baked_image(baked: BakedScene, field, params, rays: Dict[str, jnp.nda
   """
   shape, flat, blank = flat_rays(rays)
   n = flat["origins"].shape[0]
-  budget = chunk * config.samples_per_ray
-  axis = 0 if styles is None else 1
-  outputs: Dict[str, np.ndarray] = {}
+  lead = () if styles is None else (styles.shape[0],)
+  budget = chunk * (per_ray or max(1, config.samples_per_ray // 2))
+  rgb = np.zeros((*lead, n, 3), np.float32)
+  acc, depth = np.zeros(n, np.float32), np.zeros(n, np.float32)
   pending = np.arange(n)
   while pending.size:
     take, pending = pending[:chunk], pending[chunk:]
-    piece = padded(flat, blank, take, chunk)
-    out = _baked_chunk(baked, field, params, styles, config, budget, white_background, piece)
-    out = {k: np.asarray(v) for k, v in out.items()}
-    done = out["complete"][:take.size]
-    keep_complete(outputs, out, take, done, n, axis)
+    out = _geometry_call(baked, config, budget, padded(flat, blank, take, chunk))
+    done = np.asarray(out["complete"])[:take.size]
+    count = int(out["count"])
+    ray = np.asarray(out["ray"])[:count]
+    lists = {k: np.asarray(out[k])[:count] for k in ("points", "weights")}
+    lists["viewdirs"] = flat["viewdirs"][take[np.minimum(ray, take.size - 1)]]
+    for start in range(0, count, shade_chunk):
+      part = {k: v[start:start + shade_chunk] for k, v in lists.items()}
+      size = part["weights"].shape[0]
+      part = {k: np.concatenate([v, np.zeros((shade_chunk - size, *v.shape[1:]), v.dtype)])
+              for k, v in part.items()}
+      colour = np.asarray(_shade_call(baked, field, params, styles, part["points"],
+                                      part["weights"], part["viewdirs"]))[..., :size, :]
+      where = ray[start:start + size]
+      for channel in np.ndindex(*lead, 3):  # per style and channel: a bincount per ray.
+        into = rgb[channel[:-1]][:, channel[-1]]
+        into[take[done]] += np.bincount(where, colour[channel[:-1]][:, channel[-1]],
+                                        take.size + 1)[:take.size][done]
+    acc[take[done]] = np.asarray(out["accumulation"])[:take.size][done]
+    depth[take[done]] = np.asarray(out["depth"])[:take.size][done]
     pending = np.concatenate([take[~done], pending])
-  return {k: joined.reshape(*joined.shape[:axis], *shape, *joined.shape[axis + 1:])
-          for k, joined in outputs.items()}
+  if white_background:
+    rgb = rgb + (1.0 - acc)[:, None]
+  result = {"rgb": rgb, "depth": depth, "disparity": np.asarray(disparity_of(depth, acc)),
+            "accumulation": acc}
+  result = {k: v if k == "rgb" else np.broadcast_to(v, (*lead, n)) for k, v in result.items()}
+  return {k: v.reshape(*lead, *shape, *v.shape[len(lead) + 1:]) for k, v in result.items()}

@@ -149,8 +149,9 @@ def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: 
   Returns:
     {"ray": [B] int32 ray of each slot (R for an empty slot), "t": [B] sample depths,
     "delta": [B] step lengths in world units, "interval": [B, 2] the step each slot's sample
-    stands for, [start, end) in ray parameter t, "valid": [B] bool, "complete": [R] bool
-    (all of the ray's kept samples fit in the budget)}.
+    stands for, [start, end) in ray parameter t, "valid": [B] bool, "step": [B] int32 its
+    step's index along the ray (0 for an empty slot), "complete": [R] bool (all of the
+    ray's kept samples fit in the budget)}.
   """
   chex.assert_rank(rays["origins"], 2)
   n_rays = rays["origins"].shape[0]
@@ -160,12 +161,13 @@ def march(rays: Dict[str, jnp.ndarray], occupancy: jnp.ndarray, config, budget: 
   valid = flat < n_rays * n_steps
   ray = jnp.where(valid, flat // n_steps, n_rays).astype(jnp.int32)
   safe_ray = jnp.minimum(ray, n_rays - 1)
-  step = steps[flat % n_steps].astype(jnp.float32)
+  step_index = jnp.where(valid, steps[flat % n_steps], 0).astype(jnp.int32)
+  step = step_index.astype(jnp.float32)
   norm = jnp.linalg.norm(rays["directions"], axis=-1)
   lo = jnp.where(valid, t_start[safe_ray] + step * dt[safe_ray], 0.0)
   return {"ray": ray,
           "t": jnp.where(valid, lo + offset[safe_ray] * dt[safe_ray], 0.0),
           "delta": jnp.where(valid, dt[safe_ray] * norm[safe_ray], 0.0),
           "interval": jnp.stack([lo, jnp.where(valid, lo + dt[safe_ray], 0.0)], -1),
-          "valid": valid,
+          "valid": valid, "step": step_index,
           "complete": jnp.cumsum(jnp.sum(keep, -1)) <= budget}

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from msnerf_jax.nerf import baked as baked_render
 from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.style import vectors as styles_lib
 from msnerf_jax.data import images as images_lib
@@ -27,6 +28,7 @@ from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import ORIGINAL, style_name
 from msnerf_jax.style.vectors import style_vector_of
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.kinds import baked as baked_lib
 from msnerf_jax.kinds.registry import get_kind
 from msnerf_jax.kinds.renderers import painting_decoder
 from msnerf_jax.kinds.runs import Run
@@ -75,11 +77,13 @@ class Frames:
   """
 
   def __init__(self, run: Run, scene: Scene, style_paths: Sequence[str] = (),
-               decoder_dir: Optional[str] = None, grids: Optional[int] = None):
+               decoder_dir: Optional[str] = None, grids: Optional[int] = None,
+               exact: bool = False, report: Callable[[str], Any] = print):
     """style_paths: style images added to the style table (any run with styles); decoder_dir:
     the AdaIN run that paints a feature run (default: the one it was trained with); grids:
     the cell grids its full frames are painted on (views.render_feature_styles'; low frames,
-    drawn while the camera moves, use one)."""
+    drawn while the camera moves, use one). A NeRF or multi-style run on the occupancy grid
+    is drawn from its baked scene (kinds.baked, baked on first use), unless `exact`."""
     self.run, self.scene = run, scene
     self._painted_size = None  # what a style picture is cover-cropped to (feature runs).
     self._paint = None
@@ -101,6 +105,9 @@ class Frames:
                      for level in LEVELS}
     else:
       self.field = kind.field(run.config)
+    self.baked = None
+    if not exact and self._paint is None and baked_lib.why_not_baked(run) is None:
+      self.baked = jax.device_put(baked_lib.baked_scene(run, report))
     if style_paths and not self.styles:
       raise UserError(f"--styles: {run.run_dir} is a NeRF run, it has no styles")
     # Given style images first: the page opens in the first one (named for its file, apart
@@ -177,8 +184,13 @@ class Frames:
         if cancelled():
           return None
         band = {k: v[start:start + chunk] for k, v in flat.items()}
-        out = render_lib.render_image(self.field, self.params, band, self.config,
-                                      self.scene.white_background, chunk, styles)
+        if self.baked is not None:
+          out = baked_render.render_baked_image(self.baked, self.field, self.params, band,
+                                                self.config, self.scene.white_background,
+                                                chunk, styles, shade_chunk=4 * chunk)
+        else:
+          out = render_lib.render_image(self.field, self.params, band, self.config,
+                                        self.scene.white_background, chunk, styles)
         bands.append(out["rgb"] if styles is None else out["rgb"][0])
     return images_lib.to_uint8(np.concatenate(bands).reshape(*shape, 3))
 

@@ -340,11 +340,12 @@ def keyframes_dict(cameras) -> Dict[str, Any]:
 def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.0.1",
                 port: int = 8080, log: Callable[[str], Any] = print,
                 style_paths: Sequence[str] = (), decoder_dir: Optional[str] = None,
-                grids: Optional[int] = None) -> ViewerServer:
+                grids: Optional[int] = None, exact: bool = False) -> ViewerServer:
   """Loads a run folder (a NeRF, multi-style or feature run), compiles its frames and starts
   serving it; `out_dir` (default RUN/viewer) receives saved views and keyframes. style_paths:
   style images added to the style menus; decoder_dir, grids: the AdaIN run that paints a
-  feature run (default: its own) and on how many cell grids (Frames').
+  feature run (default: its own) and on how many cell grids (Frames'); exact: draw with the
+  exact renderer, not the run's baked scene.
 
   Raises:
     UserError for an unreadable run, a run without a scene, a bad style image or decoder, or
@@ -360,7 +361,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   check_port(host, port)
   run = runs.load_run(run_dir, kind)
   scene = runs.scene_of(run)[0]
-  frames = Frames(run, scene, style_paths, decoder_dir, grids)
+  frames = Frames(run, scene, style_paths, decoder_dir, grids, exact, log)
   log(f"{run_dir}: {kind} run at step {run.step}, {scene.width}x{scene.height} frames"
       + (f", styles: {', '.join(frames.styles)}" if frames.has_styles else ""))
   frames.warm_up(log)
