@@ -4,7 +4,7 @@ server and protocol (msnerf_jax.viewer.probe as the browser), against the same f
 rendered directly in the same run.
 
 Usage:
-  python experiments/benchmarks/bench_viewer.py --run RUN [--moves 20]
+  python experiments/benchmarks/bench_viewer.py --run RUN [--moves 20] [--exact]
 
 RUN: a NeRF or multi-style run folder (the issue's target: a lego 100x100 multi-style run).
 Targets (issue 18, 2-core CPU): low frame < 0.3 s after a move, full 100x100 frame < 2 s.
@@ -33,10 +33,13 @@ def main():
   parser.add_argument("--moves", type=int, default=20)
   parser.add_argument("--width", type=int, default=800, help="the page's viewport")
   parser.add_argument("--height", type=int, default=800)
+  parser.add_argument("--exact", action="store_true",
+                      help="draw with the exact renderer, not a fast run's baked scene")
   args = parser.parse_args()
   print(f"# {platform.machine()} {os.cpu_count()} cores, jax {jax.__version__}, "
         f"{jax.devices()[0].platform}; run {args.run}")
-  viewer = server_lib.open_viewer(args.run, "/tmp/msnerf_bench_viewer", port=0, log=print)
+  viewer = server_lib.open_viewer(args.run, "/tmp/msnerf_bench_viewer", port=0, log=print,
+                                  exact=args.exact)
   frames = viewer.frames
   scene = frames.scene
   poses = scene.render_poses
