@@ -489,6 +489,7 @@ def test_a_runs_bake_is_saved_reused_rebaked_when_the_run_changed_and_bad_files_
 
 def test_the_viewer_draws_a_fast_run_from_its_bake(fast_world, tmp_path):
   import shutil  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data.images import to_uint8  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds import baked as baked_run  # pylint: disable=g-import-not-at-top
   from msnerf_jax.viewer.frames import Frames, Request  # pylint: disable=g-import-not-at-top
   run_dir = str(tmp_path / "ms")
@@ -498,11 +499,16 @@ def test_the_viewer_draws_a_fast_run_from_its_bake(fast_world, tmp_path):
   exact = Frames(run, scene, exact=True)
   assert fast.baked is not None and exact.baked is None
   assert os.path.exists(os.path.join(run_dir, baked_run.BAKED_FILE))
+  assert fast.pixels["full"] == exact.pixels["full"]
+  assert fast.pixels["low"] == 4 * exact.pixels["low"]  # previews of 1/4 of the pixels
   request = fast.start_request()
-  for level in ("low", "full"):
-    a = fast.render(request, level).astype(float)
-    b = exact.render(request, level).astype(float)
-    assert a.shape == b.shape and np.abs(a - b).mean() < 6, (level, np.abs(a - b).mean())
-  other = Request(request.view, fast.styles["blue"])  # another style, drawn as exactly
-  a, b = fast.render(other, "full").astype(float), exact.render(other, "full").astype(float)
-  assert np.abs(a - b).mean() < 6
+  for style in ("red", "blue"):
+    request = Request(request.view, fast.styles[style])
+    for level in ("low", "full"):
+      frame = fast.render(request, level).astype(float)
+      rays = scene.camera_rays(fast.camera(request.view, level))
+      reference = to_uint8(render_lib.render_image(
+          exact.field, run.params, rays, run.config.nerf, True,
+          styles=jnp.asarray(request.style)[None])["rgb"][0]).astype(float)
+      assert frame.shape == reference.shape
+      assert np.abs(frame - reference).mean() < 6, (style, level)
