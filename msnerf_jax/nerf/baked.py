@@ -175,10 +175,10 @@ def ray_cumsum(values: jnp.ndarray, ray: jnp.ndarray, step: jnp.ndarray, n_rays:
 def heavy_samples(baked: BakedScene, rays: Dict[str, jnp.ndarray], config, budget: int,
                   threshold: float = THRESHOLD) -> Dict[str, jnp.ndarray]:
   """The geometry of rays [R] from a baked scene: the occupancy-grid sampler's samples
-  (occupancy.march in the baked cells), their density
-  interpolated in the bricks, composited; the samples heavier than `threshold` packed first
-  (the ones worth shading), each ray's weights scaled so that its shaded ones sum to its
-  opacity.
+  (occupancy.march in the baked cells), their density interpolated in the bricks,
+  composited; the samples heavier than `threshold` packed first (the ones worth shading),
+  each ray's weights scaled so that its shaded ones sum to its opacity (a ray none of
+  whose samples is that heavy keeps its opacity and gets no colour).
 
   Returns: {"points": [budget, 3], "weights": [budget], "ray": [budget] (R: an empty slot),
   "count": [] int32 (how many slots are used), "accumulation", "depth": [R], "complete":
