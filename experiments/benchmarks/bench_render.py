@@ -6,7 +6,7 @@ Usage:
       [--components 16] [--chunk 4096] [--name lego]
 
 RUN is a NeRF run with the occupancy-grid sampler (the `fast` preset). The scene is baked
-once (timed; its arrays' size printed, and the size of the float16 .npz they would make),
+once (timed; its arrays' size printed, and the size of the RUN/baked.npz they make),
 then each held-out view is rendered by render.render_image (the exact renderer) and by
 render_baked_image in the same process, each timed on its second call (the first compiles:
 the exact renderer compiles once per sample-budget class, the baked one once per chunk
@@ -16,7 +16,6 @@ size, both counted and printed). The last line is
 """
 
 import argparse
-import io
 import time
 
 import jax
@@ -24,6 +23,7 @@ import numpy as np
 
 import msnerf_jax as ms
 from msnerf_jax.eval import metrics
+from msnerf_jax.kinds.baked import to_bytes
 from msnerf_jax.nerf import baked, render as render_lib
 from common import machine
 
@@ -32,17 +32,6 @@ def timed(fn):
   start = time.perf_counter()
   out = fn()
   return out, time.perf_counter() - start
-
-
-def stored_bytes(scene: baked.BakedScene) -> int:
-  """Bytes of the scene as a float16 .npz (index int32, the rest float16)."""
-  buffer = io.BytesIO()
-  arrays = {k: np.asarray(v, np.int32 if k == "index" else np.float16)
-            for k, v in (("index", scene.index), ("density", scene.density),
-                         ("coefficients", scene.coefficients), ("basis", scene.basis),
-                         ("mean", scene.mean))}
-  np.savez(buffer, **arrays)
-  return len(buffer.getvalue())
 
 
 def main():
@@ -67,7 +56,7 @@ def main():
   in_memory = sum(np.asarray(x).nbytes for x in jax.tree_util.tree_leaves(bake))
   print(f"bake: {seconds:.1f} s, {n_bricks} bricks of {bake.resolution + 1}^3 vertices, "
         f"{args.components} components: {in_memory / 1e6:.1f} MB in memory (float32), "
-        f"{stored_bytes(bake) / 1e6:.1f} MB as a float16 .npz")
+        f"{len(to_bytes(bake, '')) / 1e6:.1f} MB as RUN/baked.npz")
   bake = jax.device_put(bake)
   params = jax.device_put(run.params)
   views = scene.split("val" if "val" in scene.splits else "train")[:args.views]

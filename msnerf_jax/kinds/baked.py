@@ -73,8 +73,6 @@ def read_baked(path: str):
       if not all(k in archive for k in (*ARRAYS, "fingerprint", "bound", "format")):
         raise ValueError("arrays missing")
       arrays = {k: np.asarray(archive[k]) for k in (*ARRAYS, "fingerprint", "bound", "format")}
-  except UserError:
-    raise
   except MemoryError:
     raise
   except Exception as e:  # pylint: disable=broad-except  # zip, header, shape errors ...
