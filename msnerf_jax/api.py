@@ -16,7 +16,7 @@ from typing import Any, Dict, Optional, Tuple
 import jax.numpy as jnp
 
 from msnerf_jax.core.config import (AdainConfig, DataConfig, FeatureConfig, MultistyleConfig,
-                                    NerfConfig, PaintConfig, nerf_preset)
+                                    NerfConfig, OptimConfig, PaintConfig, nerf_preset, override)
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.data.scene import Scene, load_scene
 from msnerf_jax.kinds.base import RunKind
@@ -86,7 +86,7 @@ __all__ = [
     "style_vectors", "style_vector_of", "style_vector", "blend", "adain",
     # configs
     "NerfConfig", "MultistyleConfig", "FeatureConfig", "PaintConfig", "AdainConfig", "DataConfig",
-    "nerf_preset",
+    "OptimConfig", "nerf_preset", "override",
     # primitives
     "get_rays", "ray_bundle", "stratified_samples", "sample_pdf", "volume_render",
     "UserError",

@@ -5,7 +5,6 @@ Every bad file is generated here in a temporary folder from a tiny valid scene, 
 AdaIN decoder run and stylized dataset (all built without training more than 2 steps).
 """
 
-import dataclasses
 import io
 import json
 import os
@@ -24,7 +23,7 @@ from msnerf_jax import cli
 from msnerf_jax.core import checkpoint
 from msnerf_jax.kinds import runs
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.core.config import DataConfig
+from msnerf_jax.core.config import DataConfig, override
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import stylized as stylized_lib
 from msnerf_jax.data.scene import load_scene
@@ -113,7 +112,7 @@ def world(tmp_path_factory):
   scene_dir = write_blender_scene(str(root / "scene"), n_train=3, n_val=1, size=SIZE)
   scene, data = load_scene(DataConfig(path=scene_dir))
   nerf_run = str(root / "nerf")
-  untrained_nerf_run(nerf_run, data, dataclasses.replace(TINY, steps=2, checkpoint_every=2))
+  untrained_nerf_run(nerf_run, data, override(TINY, steps=2, checkpoint_every=2))
   styles_dir = root / "styles"
   styles_dir.mkdir()
   style = write_style(styles_dir / "red.png")

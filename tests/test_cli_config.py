@@ -1,7 +1,6 @@
 """Every config field is reachable from the command line; --config starts from a saved run."""
 
 import argparse
-import dataclasses
 import json
 import os
 
@@ -9,6 +8,7 @@ import pytest
 
 from msnerf_jax import cli
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.core.config import override
 from test_cli_nerf import assert_one_line_error, msnerf
 
 
@@ -36,7 +36,7 @@ def dests(parser):
 ])
 def test_every_config_field_has_an_option(path, cls, aliases, fixed):
   have = dests(verb_parser(*path))
-  missing = [f.name for f in dataclasses.fields(cls)
+  missing = [f.name for _, f in config_lib.flat_fields(cls)
              if f.name not in fixed and aliases.get(f.name, f.name) not in have]
   assert not missing, f"{' '.join(path)} lacks options for {missing}"
 
@@ -61,8 +61,9 @@ def test_generated_options_and_config_file_reach_run_json(tiny_blender, tmp_path
   assert r.returncode == 0, r.stderr
   saved = json.load(open(os.path.join(first, "run.json")))
   config = saved["config"]
-  assert (config["lr_init"], config["raw_noise_std"], config["lindisp"], config["perturb"],
-          config["keep_checkpoints"], config["pos_freqs"]) == (0.01, 0.5, True, False, 1, 3)
+  assert (config["optim"]["lr_init"], config["raw_noise_std"], config["lindisp"],
+          config["perturb"], config["optim"]["keep_checkpoints"],
+          config["pos_freqs"]) == (0.01, 0.5, True, False, 1, 3)
   assert saved["data"]["llff_holdout"] == 4
   second = str(tmp_path / "second")
   r = msnerf("nerf", "train", "--data", tiny_blender, "--out", second, "--config", first,
@@ -112,11 +113,12 @@ def test_config_file_keeps_what_the_command_line_does_not_set(kind, argv, field,
   from msnerf_jax.cli.config_args import given_options, start_config  # pylint: disable=g-import-not-at-top
   from msnerf_jax.kinds.registry import get_kind  # pylint: disable=g-import-not-at-top
   cls = get_kind(kind).config_class
-  saved = dataclasses.replace(cls(), steps=7, seed=5)
+  saved = override(cls(), steps=7, seed=5)
   runs.prepare_run_dir(str(tmp_path / "run"), kind, {"config": config_lib.to_dict(saved)})
   parser = cli.build_parser()
   args = parser.parse_args(argv + ["--config", str(tmp_path / "run")])
   args.given = given_options(parser, argv + ["--config", str(tmp_path / "run")])
-  built = dataclasses.replace(cls(), **{field: value})  # what the options alone build
+  built = override(cls(), **{field: value})  # what the options alone build
   config = start_config(args, kind, built, {"lr_init": "lr", "lr_final": "lr"})
-  assert (config.steps, config.seed, getattr(config, field)) == (7, 5, value)
+  assert [config_lib.setting_of(config, name) for name in ("steps", "seed", field)] == [
+      7, 5, value]

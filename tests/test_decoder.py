@@ -12,6 +12,7 @@ from PIL import Image
 from msnerf_jax.kinds import runs
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.parallel import data_parallel
 from msnerf_jax.models import decoder
 from msnerf_jax.train import adain as train_adain
 from msnerf_jax.train import adain_losses
@@ -126,17 +127,17 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, folders, monkey
   content, styles = folders
   run = str(tmp_path / "run")
   train_adain.train(TINY, [content], styles, run, progress=False, log=lambda *_: None)
-  real = train_adain.make_train_step
+  real = train_adain.compile_train_step
 
-  def nan_step(config):
-    step = real(config)  # the compiled step, with its loss turned into NaN
+  def nan_step(*args):
+    step = real(*args)  # the compiled step, with its loss turned into NaN
 
-    def run_step(*args):
-      params, opt_state, metrics = step(*args)
-      return params, opt_state, {k: v * jnp.nan for k, v in metrics.items()}
+    def run_step(state, batch):
+      state, metrics = step(state, batch)
+      return state, {k: v * jnp.nan for k, v in metrics.items()}
     return run_step
 
-  monkeypatch.setattr(train_adain, "make_train_step", nan_step)
+  monkeypatch.setattr(train_adain, "compile_train_step", nan_step)
   longer = config_lib.AdainConfig(**{**config_lib.to_dict(TINY), "steps": 4})
   with pytest.raises(UserError, match=r"step 3: loss is nan.*last good checkpoint: step 2"):
     train_adain.train(longer, [content], styles, run, progress=False, log=lambda *_: None)
@@ -148,15 +149,14 @@ def test_training_reduces_loss():
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   config = TINY
   enc = vgg.load_vgg_params()
-  params = decoder.init_decoder(jax.random.PRNGKey(0))
-  opt_state = train_adain.make_optimizer(config).init(params)
-  step = train_adain.make_train_step(train_adain.step_config(config))
+  state = train_adain.new_state(decoder.init_decoder(jax.random.PRNGKey(0)), config)
+  step = train_adain.compile_train_step(config, data_parallel(1), enc)
   rng = np.random.default_rng(1)
   content = rng.random((2, 32, 32, 3)).astype(np.float32)
   style = (rng.random((2, 32, 32, 3)) ** 2).astype(np.float32)
   losses = []
   for _ in range(8):
-    params, opt_state, m = step(params, opt_state, enc, content, style)
+    state, m = step(state, (content, style, None, None))
     losses.append(float(m["loss"]))
   assert max(losses[-3:]) < 0.7 * losses[0], losses
 
@@ -291,12 +291,12 @@ def test_shift_weight_adds_the_loss_and_its_gradient_lowers_it():
   for source in config_lib.SHIFT_SOURCES:
     only_shift = dataclasses.replace(TINY, content_weight=0.0, style_weight=0.0, shift_weight=1.0,
                                      shift_source=source)
-    tuned = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its inputs.
-    opt_state = train_adain.make_optimizer(only_shift).init(tuned)
-    step = train_adain.make_train_step(train_adain.step_config(only_shift))
+    # The step donates its inputs: a copy of the params.
+    state = train_adain.new_state(jax.tree_util.tree_map(jnp.copy, params), only_shift)
+    step = train_adain.compile_train_step(only_shift, data_parallel(1), enc)
     values = []
     for _ in range(6):
-      tuned, opt_state, m = step(tuned, opt_state, enc, content, style, shifts)
+      state, m = step(state, (content, style, shifts, None))
       values.append(float(m["shift"]))
     assert values[-1] < 0.7 * values[0], (source, values)
 
@@ -339,3 +339,95 @@ def test_bad_shift_settings_are_refused_before_writing(tmp_path, folders, weight
     train_adain.train(config, [content], styles, run, progress=False, log=lambda *_: None)
   assert needle in str(info.value)
   assert not os.path.exists(run)
+
+
+def test_device_rows_give_each_device_its_photos_and_feature_crops_styles():
+  """Split into consecutive blocks, each device's style rows are its photos' styles, then its
+  feature crops' (as `losses` reads them); one device keeps the batch as it is."""
+  content = np.arange(4)[:, None] * np.ones((4, 3))  # photos 0..3
+  features = 10 + np.arange(2)[:, None] * np.ones((2, 5))  # feature crops 10, 11
+  style = np.concatenate([content[:, 0], features[:, 0]])  # style row i belongs to crop i
+  shifts = np.stack([style, -style], 1)
+  batch = (content, style, shifts, features)
+  assert train_adain.device_rows(batch, 1) is batch
+  c, s, sh, f = train_adain.device_rows(batch, 2)
+  for d in range(2):
+    mine = np.concatenate([np.split(c, 2)[d][:, 0], np.split(f, 2)[d][:, 0]])
+    np.testing.assert_array_equal(np.split(s, 2)[d], mine)
+    np.testing.assert_array_equal(np.split(sh, 2)[d][:, 0], mine)
+  no_features = train_adain.device_rows((content, style[:4], shifts[:4], None), 2)
+  np.testing.assert_array_equal(no_features[1], style[:4])
+
+
+TWO_DEVICES = """
+import os, sys
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                           + " --xla_force_host_platform_device_count=2")
+import jax, numpy as np
+from msnerf_jax import cli
+from msnerf_jax.core import config as config_lib
+from msnerf_jax.core.parallel import data_parallel
+from msnerf_jax.kinds import runs
+from msnerf_jax.models import decoder, vgg
+from msnerf_jax.train import adain as train_adain
+assert jax.local_device_count() == 2
+content, styles, out = sys.argv[1:4]
+# One step on the same batch. Each device takes one image, so the two devices' gradient (Adam's
+# first moment after one step is (1 - b1) times the gradient) and losses are the mean of one
+# device's on each image alone, to float32 rounding; the whole batch on one device sums in
+# another order, which this loss's float32 gradient feels at ~1% (in float64 the three agree
+# to 1e-12).
+config = config_lib.AdainConfig(size=32, resize=36, batch=2)  # the command line's below
+rng = np.random.default_rng(0)
+batch = (rng.random((2, 32, 32, 3), np.float32), rng.random((2, 32, 32, 3), np.float32),
+         np.array([[3, 4], [7, 1]], np.int32), None)
+enc = vgg.load_vgg_params()
+params = jax.tree_util.tree_map(np.asarray, decoder.init_decoder(jax.random.PRNGKey(0)))
+
+def one_step(n, rows):
+  dp = data_parallel(n)
+  step = train_adain.compile_train_step(config, dp, enc)
+  part = jax.tree_util.tree_map(lambda x: x[rows], batch)
+  state, stats = step(dp.put_state(train_adain.new_state(params, config)),
+                      dp.put_batch(train_adain.device_rows(part, n)))
+  return dp.to_host((state.opt_state[0].mu, stats))
+
+mean = lambda trees: jax.tree_util.tree_map(lambda *x: sum(x) / len(x), *trees)
+alone = mean([one_step(1, slice(i, i + 1)) for i in range(2)])
+two, whole = one_step(2, slice(0, 2)), one_step(1, slice(0, 2))
+leaves = jax.tree_util.tree_leaves
+worst = lambda a, b: max(float(np.abs(x - y).max()) for x, y in zip(leaves(a), leaves(b)))
+scale = max(float(np.abs(x).max()) for x in leaves(alone[0]))
+print("two vs alone", worst(two[0], alone[0]), "whole vs alone", worst(whole[0], alone[0]),
+      "scale", scale)
+assert scale > 0 and worst(two[0], alone[0]) < 1e-5 * scale
+assert worst(whole[0], alone[0]) < 3e-2 * scale
+for k in alone[1]:
+  assert abs(float(two[1][k]) - float(alone[1][k])) <= 1e-5 * abs(float(alone[1][k])), k
+  assert abs(float(whole[1][k]) - float(alone[1][k])) <= 1e-4 * abs(float(alone[1][k])), k
+# The command line trains on both devices through the shared loop.
+run = os.path.join(out, "run")
+assert cli.main(["adain", "train", "--content", content, "--styles", styles, "--out", run,
+                 "--size", "32", "--resize", "36", "--batch", "2", "--steps", "2",
+                 "--sample-every", "2", "--checkpoint-every", "2", "--devices", "2",
+                 "--no-progress"]) == 0
+assert runs.load_run(run).step == 2
+assert os.path.exists(os.path.join(run, "samples", "step_0000002.png"))
+"""
+
+
+def test_two_devices_train_the_decoder_as_one(tmp_path, folders):
+  import subprocess  # pylint: disable=g-import-not-at-top
+  import sys  # pylint: disable=g-import-not-at-top
+  content, styles = folders
+  result = subprocess.run([sys.executable, "-c", TWO_DEVICES, content, styles, str(tmp_path)],
+                          capture_output=True, text=True, timeout=600)
+  assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_a_batch_that_does_not_split_over_the_devices_is_refused():
+  class Three:  # a DataParallel's size is all check_devices reads
+    size = 3
+  with pytest.raises(UserError, match=r"--batch 2: must be a multiple of the 3 devices"):
+    train_adain.check_devices(TINY, Three())
+

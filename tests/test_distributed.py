@@ -43,7 +43,8 @@ def command(trainer, inputs, out, steps, every):
 
 
 def env_with(inputs, devices):
-  return dict(inputs["env"], XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+  return dict(inputs["env"], XLA_FLAGS=os.environ.get("XLA_FLAGS", "")
+              + f" --xla_force_host_platform_device_count={devices}")
 
 
 def start_processes(argvs, env, log, timeout=60):

@@ -18,7 +18,7 @@ from msnerf_jax.eval import metrics
 from msnerf_jax.nerf import occupancy
 from msnerf_jax.nerf import regularizers
 from msnerf_jax.nerf import render as render_lib
-from msnerf_jax.core.config import DataConfig
+from msnerf_jax.core.config import DataConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.models.nerf import NerfField
@@ -183,7 +183,7 @@ def test_random_backgrounds_and_distortion_resume_bit_identically(tiny_blender, 
   scene, data = load_scene(DataConfig(path=tiny_blender))
   config = dataclasses.replace(TINY, random_background=True, distortion_weight=0.01)
   nerf.train(scene, config, data, str(tmp_path / "full"), progress=False)
-  nerf.train(scene, dataclasses.replace(config, steps=4), data, str(tmp_path / "split"),
+  nerf.train(scene, override(config, steps=4), data, str(tmp_path / "split"),
              progress=False)
   nerf.train(scene, config, data, str(tmp_path / "split"), progress=False)
   full = msnerf_jax.load_run(str(tmp_path / "full"))
@@ -204,8 +204,8 @@ def test_random_backgrounds_keep_the_empty_region_empty(tmp_path):
   folder = demo.write_scene(str(tmp_path / "scene"), size=16, n_train=24, n_val=3,
                             progress=False)
   scene, data = load_scene(DataConfig(path=folder))
-  config = dataclasses.replace(TINY, net_width=48, steps=300, checkpoint_every=300,
-                               batch_rays=256, lr_init=1e-2, lr_final=1e-3, n_fine=16)
+  config = override(TINY, net_width=48, steps=300, checkpoint_every=300, batch_rays=256,
+                    lr_init=1e-2, lr_final=1e-3, n_fine=16)
   opacity = {}
   for random_background in (False, True):
     cfg = dataclasses.replace(config, random_background=random_background)

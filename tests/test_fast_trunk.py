@@ -15,7 +15,7 @@ import msnerf_jax
 from msnerf_jax.nerf import occupancy
 from msnerf_jax.kinds import multistyle as multistyle_kind
 from msnerf_jax.nerf import render as render_lib
-from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.nerf.hash_encoding import hash_encode, level_resolutions
@@ -24,7 +24,7 @@ from msnerf_jax.train import nerf
 from msnerf_jax.nerf.volume_rendering import volume_render, volume_render_packed
 
 # A small fast-preset config for the tiny synthetic scene (16x16 views, box of half side 1.5).
-TINY_FAST = dataclasses.replace(
+TINY_FAST = override(
     nerf_preset("fast", "blender"), net_width=16, hash_levels=4, hash_features=2,
     hash_table_size=2 ** 10, hash_min_res=4, hash_max_res=32, scene_box=1.5,
     grid_resolution=8, march_steps=32, samples_per_ray=32, grid_every=2, grid_warmup=4,
@@ -188,7 +188,7 @@ def test_the_grid_is_frozen_from_the_optimizer():
 def test_fast_resume_gives_the_same_parameters_as_one_run(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   nerf.train(scene, TINY_FAST, data, str(tmp_path / "full"), progress=False)
-  nerf.train(scene, dataclasses.replace(TINY_FAST, steps=4), data, str(tmp_path / "split"),
+  nerf.train(scene, override(TINY_FAST, steps=4), data, str(tmp_path / "split"),
              progress=False)
   assert nerf.train(scene, TINY_FAST, data, str(tmp_path / "split"),
                     progress=False)["resumed_from"] == 4
@@ -200,7 +200,8 @@ def test_fast_resume_gives_the_same_parameters_as_one_run(tiny_blender, tmp_path
 
 TWO_DEVICES = textwrap.dedent("""
     import os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2")
     import dataclasses, jax, numpy as np, jax.numpy as jnp
     from msnerf_jax.core.config import DataConfig
     from msnerf_jax.data.scene import load_scene
@@ -279,8 +280,8 @@ def fast_world(tmp_path_factory):
   nerf_run = str(root / "nerf")
   # 64 wide: the style heads get 32 units (with 8, all of them may start out dead for both
   # styles on an untrained trunk, and render the styles alike).
-  summary = nerf.train(scene, dataclasses.replace(TINY_FAST, steps=20, checkpoint_every=20,
-                                                  net_width=64), data, nerf_run, progress=False)
+  summary = nerf.train(scene, override(TINY_FAST, steps=20, checkpoint_every=20, net_width=64),
+                       data, nerf_run, progress=False)
   assert summary["steps"] == 20
   styles = [write_style(root / "red.png", (200, 30, 30)),
             write_style(root / "blue.png", (20, 40, 200))]
@@ -344,7 +345,7 @@ def test_a_multistyle_run_pointed_at_a_nerf_run_of_another_trunk_is_refused(fast
   from test_train_nerf import TINY  # pylint: disable=g-import-not-at-top
   scene, data = load_scene(DataConfig(path=str(fast_world["root"] / "scene")))
   mlp_run = str(fast_world["root"] / "nerf_mlp")
-  nerf.train(scene, dataclasses.replace(TINY, steps=2), data, mlp_run, progress=False)
+  nerf.train(scene, override(TINY, steps=2), data, mlp_run, progress=False)
   before = sorted(os.listdir(fast_world["run"]))
   assert cli.main(["multistyle", "train", "--nerf", mlp_run, "--stylized",
                    fast_world["stylized"], "--out", fast_world["run"], "--steps", "3",

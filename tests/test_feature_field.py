@@ -20,7 +20,7 @@ from msnerf_jax import cli
 from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.kinds import runs
-from msnerf_jax.core.config import DataConfig, FeatureConfig
+from msnerf_jax.core.config import DataConfig, FeatureConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.style.features import (cell_grid, pooled_stats, style_vector_of_stats,
@@ -34,10 +34,10 @@ from test_multistyle import write_style
 from test_train_nerf import TINY
 
 # A small field: 4 levels of 2^10 entries, an 8-channel feature.
-TINY_FEATURES = FeatureConfig(dim=8, width=16, hash_levels=4, hash_table_size=2 ** 10,
-                              hash_min_res=4, hash_max_res=32, top_k=4, stylize_scale=2,
-                              rays_per_cell=2, batch_cells=8, steps=4, checkpoint_every=2,
-                              lr_init=1e-2)
+TINY_FEATURES = override(FeatureConfig(), dim=8, width=16, hash_levels=4,
+                         hash_table_size=2 ** 10, hash_min_res=4, hash_max_res=32, top_k=4,
+                         stylize_scale=2, rays_per_cell=2, batch_cells=8, steps=4,
+                         checkpoint_every=2, lr_init=1e-2)
 
 
 def leaves(tree):
@@ -349,7 +349,7 @@ def test_feature_resume_is_bit_identical(feature_world, tmp_path):
   nerf_run, decoder = feature_world["nerf"], feature_world["decoder"]
   full, split = str(tmp_path / "full"), str(tmp_path / "split")
   features.train(TINY_FEATURES, nerf_run, decoder, full, progress=False)
-  features.train(dataclasses.replace(TINY_FEATURES, steps=2), nerf_run, decoder, split,
+  features.train(override(TINY_FEATURES, steps=2), nerf_run, decoder, split,
                  progress=False)
   assert features.train(TINY_FEATURES, nerf_run, decoder, split,
                         progress=False)["resumed_from"] == 2
@@ -360,7 +360,8 @@ def test_feature_resume_is_bit_identical(feature_world, tmp_path):
 
 TWO_DEVICES = textwrap.dedent("""
     import os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2")
     import dataclasses, jax, numpy as np, jax.numpy as jnp
     import msnerf_jax
     from msnerf_jax.core.config import DataConfig
@@ -419,7 +420,7 @@ def test_two_devices_give_the_same_feature_steps_as_one(feature_world, decode_we
 def test_a_feature_run_pointed_at_another_nerf_run_is_refused(feature_world, tmp_path, capsys):
   scene, data = feature_world["scene"], feature_world["data"]
   other = str(tmp_path / "other_nerf")
-  nerf.train(scene, dataclasses.replace(TINY, steps=2), data, other, progress=False)
+  nerf.train(scene, override(TINY, steps=2), data, other, progress=False)
   run = feature_world["run"]
   before = {f: os.path.getmtime(os.path.join(run, f)) for f in os.listdir(run)}
   assert cli.main(["features", "train", "--nerf", other, "--decoder", feature_world["decoder"],
@@ -520,7 +521,7 @@ def test_decoder_fine_tuned_on_a_feature_runs_maps_sees_them_as_its_views_are_pa
     np.testing.assert_allclose(both[name], (first[name] + second[name]) / 2, rtol=1e-4)
   # Two steps, then resumed to four: the same decoder bit for bit.
   resumed = str(tmp_path / "resumed")
-  train_adain.train(dataclasses.replace(config, steps=2), [], styles, resumed, **quiet)
+  train_adain.train(override(config, steps=2), [], styles, resumed, **quiet)
   train_adain.train(config, [], styles, resumed, **quiet)
   jax.tree_util.tree_map(np.testing.assert_array_equal, runs.load_run(resumed).params,
                          runs.load_run(straight).params)
@@ -581,22 +582,20 @@ def test_bad_style_images_and_decoders_get_one_line(feature_world, tmp_path, cap
 
 def test_evaluation_frames_of_a_feature_run_follow_its_style_and_white_background(
     feature_world, tmp_path):
-  from msnerf_jax.eval import evaluate  # pylint: disable=g-import-not-at-top
-  from msnerf_jax.kinds import views
+  from msnerf_jax.eval import paths  # pylint: disable=g-import-not-at-top
   from msnerf_jax.models import vgg  # pylint: disable=g-import-not-at-top
   run = msnerf_jax.load_run(feature_world["run"])
   nerf_run = msnerf_jax.load_run(feature_world["nerf"])
   scene = feature_world["scene"]
-  base = [{**views.render_view(scene, nerf_run.params, nerf_run.config, c2w), "pose": c2w}
-          for c2w in scene.render_poses[:2]]
+  base = paths.nerf_path(scene, nerf_run.params, nerf_run.config, scene.render_poses[:2])
   encoder = vgg.load_vgg_params()
   red = np.tile(np.array([0.9, 0.1, 0.1], np.float32), (32, 32, 1))
   blue = np.tile(np.array([0.1, 0.1, 0.9], np.float32), (32, 32, 1))
-  (frames, other), geometry = evaluate.feature_field_frames(
+  (frames, other), geometry = paths.feature_field_frames(
       run, scene, base, feature_world["nerf"], encoder, [red, blue], [1.0, 1.0])
   assert geometry is base and len(frames) == 2 and frames[0].shape == (16, 16, 3)
   assert float(np.abs(frames[0] - other[0]).max()) > 1e-4
-  (alone,), _ = evaluate.feature_field_frames(run, scene, base, feature_world["nerf"], encoder,
+  (alone,), _ = paths.feature_field_frames(run, scene, base, feature_world["nerf"], encoder,
                                               [blue], [1.0])
   np.testing.assert_allclose(alone[1], other[1], atol=1e-5)  # a sweep equals single styles
   # Where the NeRF is transparent the frame is white (Blender), as per-frame AdaIN's.
@@ -604,7 +603,7 @@ def test_evaluation_frames_of_a_feature_run_follow_its_style_and_white_backgroun
   if clear.any():
     np.testing.assert_allclose(frames[0][clear], 1.0, atol=2e-3)
   # Another NeRF run's field: its own geometry is rendered.
-  _, own = evaluate.feature_field_frames(run, scene, base, str(tmp_path / "elsewhere"), encoder,
+  _, own = paths.feature_field_frames(run, scene, base, str(tmp_path / "elsewhere"), encoder,
                                          [red], [1.0])
   assert own is not base
   np.testing.assert_allclose(own[0]["depth"], base[0]["depth"], atol=1e-5)

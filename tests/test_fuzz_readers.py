@@ -584,7 +584,8 @@ REGRESSIONS = [
     # setting (OverflowError), an empty data path, a format "" (a `--format` message).
     ("run.json", json_set("data", "path", None), "should be str"),
     ("run.json", json_set("config", "net_depth", None), "should be int"),
-    ("run.json", json_set("config", "lr_init", 10 ** 400), "should be float"),
+    ("run.json", json_set("config", "optim", "lr_init", 10 ** 400), "should be float"),
+    ("run.json", json_set("config", "lr_init", 0.1), "unknown NerfConfig keys ['lr_init']"),
     ("run.json", json_set("data", "path", ""), "path is empty"),
     ("run.json", json_set("data", "format", ""), "run.json: data: format"),
     # The stylized manifest: splits of nested lists (ValueError), None (TypeError,

@@ -11,7 +11,6 @@ evaluation 20 times each, checking after every kill that each artefact is absent
 complete.
 """
 
-import dataclasses
 import os
 import random
 import re
@@ -25,7 +24,7 @@ import numpy as np
 import pytest
 
 import msnerf_jax
-from msnerf_jax.core.config import DataConfig
+from msnerf_jax.core.config import DataConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.models import decoder
 
@@ -44,7 +43,7 @@ def trainer_inputs(root, request):
   scene = write_blender_scene(str(root / "scene"), n_train=3, n_val=1, size=16)
   _, data = load_scene(DataConfig(path=scene))
   nerf_run = str(root / "nerf")
-  untrained_nerf_run(nerf_run, data, dataclasses.replace(TINY, steps=2, checkpoint_every=2))
+  untrained_nerf_run(nerf_run, data, override(TINY, steps=2, checkpoint_every=2))
   stylized = write_stylized(scene, str(root / "stylized"))
   # A progress line every step: the kills land in training steps.
   env = trainer_env(request, root / "jax-cache", MSNERF_PROGRESS_PERCENT="0.5")

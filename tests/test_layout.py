@@ -142,3 +142,24 @@ def test_the_command_line_starts_without_jax():
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                        cwd=os.path.dirname(PACKAGE))
   assert out.stdout.strip() == "[]"
+
+
+# Sizes a reader can hold at once (issue 44's targets): a module's lines and a function's,
+# from its `def` line to its last, docstring included.
+MAX_MODULE_LINES = 350
+MAX_FUNCTION_LINES = 60
+
+
+def test_modules_and_functions_stay_short():
+  long = []
+  for module, path in sorted(modules().items()):
+    with open(path) as f:
+      source = f.read()
+    if source.count("\n") > MAX_MODULE_LINES:
+      long.append(f"{module}: {source.count(chr(10))} lines")
+    for node in ast.walk(ast.parse(source)):
+      if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        lines = node.end_lineno - node.lineno + 1
+        if lines > MAX_FUNCTION_LINES:
+          long.append(f"{module}.{node.name}: {lines} lines")
+  assert long == []

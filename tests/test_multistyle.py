@@ -1,7 +1,6 @@
 """Multi-style NeRF: the frozen trunk, the shared-sample step, sweeps, interpolation, the CLI and
 its bad input, on a tiny synthetic scene with an untrained (random) AdaIN decoder."""
 
-import dataclasses
 import json
 import os
 import subprocess
@@ -20,7 +19,7 @@ from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.core import checkpoint
 from msnerf_jax.kinds import runs
 from msnerf_jax.kinds import views
-from msnerf_jax.core.config import DataConfig
+from msnerf_jax.core.config import DataConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.models.multistyle import ConcatDense, MultiStyleMLP, MultistyleField
@@ -52,7 +51,7 @@ def world(tmp_path_factory):
   scene_dir = write_blender_scene(str(root / "scene"), n_train=4, n_val=2, size=16)
   scene, data = load_scene(DataConfig(path=scene_dir))
   nerf_run = str(root / "nerf")
-  nerf.train(scene, dataclasses.replace(TINY, steps=4), data, nerf_run, progress=False)
+  nerf.train(scene, override(TINY, steps=4), data, nerf_run, progress=False)
   styles = [write_style(root / "red.png", (200, 30, 30)), write_style(root / "blue.png", (20, 40, 200))]
   dec = fake_decoder(root / "decoder")
   stylized = str(root / "stylized")
@@ -391,7 +390,8 @@ def test_unknown_style_name_at_render(trained_standard, tmp_path, capsys):
 
 TWO_DEVICES = textwrap.dedent("""
     import os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2")
     import jax, jax.numpy as jnp, numpy as np
     sys.path.insert(0, {tests!r})
     from msnerf_jax import load_run
@@ -513,7 +513,7 @@ def single_red(world):
   run = str(world["root"] / "single_red")
   scene, data = load_scene(DataConfig(path=world["scene_dir"]))
   style = {"stylized": world["stylized"], "name": "red"}
-  nerf.train(style_views(world["stylized"], "red", scene), dataclasses.replace(TINY, steps=4),
+  nerf.train(style_views(world["stylized"], "red", scene), override(TINY, steps=4),
              data, run, progress=False, style=style)
   return run
 

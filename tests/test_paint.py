@@ -15,7 +15,7 @@ from PIL import Image
 
 import msnerf_jax
 from msnerf_jax import cli
-from msnerf_jax.core.config import DataConfig, PaintConfig
+from msnerf_jax.core.config import DataConfig, PaintConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.kinds import painted as painted_kind
 from msnerf_jax.kinds.renderers import style_rendering
@@ -31,8 +31,8 @@ from test_fast_trunk import TINY_FAST
 from test_multistyle import write_style
 from test_train_nerf import TINY
 
-TINY_PAINT = PaintConfig(resolution=12, steps=4, init_steps=2, style_size=32,
-                         checkpoint_every=2)
+TINY_PAINT = override(PaintConfig(), resolution=12, steps=4, init_steps=2, style_size=32,
+                      checkpoint_every=2)
 PAINT_ARGS = ["--resolution", "12", "--steps", "4", "--init-steps", "2", "--style-size", "32",
               "--checkpoint-every", "2"]
 
@@ -171,8 +171,8 @@ def test_the_init_fit_moves_each_style_towards_its_colours(paint_world, tmp_path
   """After the MSE fit to the colour-transferred photos, the red style renders redder than
   the blue one, and the blue one bluer."""
   run_dir = str(tmp_path / "init")
-  paint.train(dataclasses.replace(TINY_PAINT, steps=30, init_steps=30, lr_init=0.2,
-                                  lr_final=0.1, checkpoint_every=30),
+  paint.train(override(TINY_PAINT, steps=30, init_steps=30, lr_init=0.2, lr_final=0.1,
+                       checkpoint_every=30),
               paint_world["nerfs"]["fast"], paint_world["styles"], run_dir, progress=False)
   run = msnerf_jax.load_run(run_dir)
   rgb = painted_kind.render_painted(paint_world["scene"], run.params, run.config, 0)["rgb"]
@@ -221,7 +221,7 @@ def test_a_style_paints_the_same_in_a_run_of_one_style(paint_world, tmp_path):
 def test_a_resumed_painting_ends_bit_identical(paint_world, tmp_path):
   split = str(tmp_path / "split")
   nerf_run = paint_world["nerfs"]["fast"]
-  paint.train(dataclasses.replace(TINY_PAINT, steps=2), nerf_run, paint_world["styles"], split,
+  paint.train(override(TINY_PAINT, steps=2), nerf_run, paint_world["styles"], split,
               progress=False)
   assert paint.train(TINY_PAINT, nerf_run, paint_world["styles"], split,
                      progress=False)["resumed_from"] == 2
@@ -232,7 +232,8 @@ def test_a_resumed_painting_ends_bit_identical(paint_world, tmp_path):
 
 TWO_DEVICES = textwrap.dedent("""
     import os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2")
     import dataclasses, jax, numpy as np
     sys.path.insert(0, {tests!r})
     from test_paint import TINY_PAINT

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 
 import msnerf_jax
-from msnerf_jax.core.config import DataConfig, NerfConfig
+from msnerf_jax.core.config import DataConfig, NerfConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.parallel import data_parallel
 from msnerf_jax.train import nerf
 
-TINY = NerfConfig(net_depth=2, net_width=32, skip_layer=0, pos_freqs=4, dir_freqs=2,
-                  n_coarse=8, n_fine=8, batch_rays=64, steps=6, lr_init=5e-3, lr_final=5e-4,
-                  lr_decay_steps=100, precrop_steps=2, checkpoint_every=2, render_chunk=128,
-                  mlp_chunk=64)
+TINY = override(NerfConfig(), net_depth=2, net_width=32, skip_layer=0, pos_freqs=4, dir_freqs=2,
+                n_coarse=8, n_fine=8, batch_rays=64, steps=6, lr_init=5e-3, lr_final=5e-4,
+                lr_decay_steps=100, precrop_steps=2, checkpoint_every=2, render_chunk=128,
+                mlp_chunk=64)
 
 
 def leaves(tree):
@@ -29,7 +29,7 @@ def leaves(tree):
 
 def test_training_lowers_the_loss(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
-  config = dataclasses.replace(TINY, steps=30, checkpoint_every=30, raw_noise_std=0.0)
+  config = override(TINY, steps=30, checkpoint_every=30, raw_noise_std=0.0)
   state = nerf.init_state(config)
   step = nerf.compile_train_step(config, True, data_parallel(1))
   import jax.numpy as jnp  # pylint: disable=g-import-not-at-top
@@ -50,7 +50,7 @@ def test_training_lowers_the_loss(tiny_blender, tmp_path):
 def test_resume_gives_the_same_parameters_as_one_run(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   nerf.train(scene, TINY, data, str(tmp_path / "full"), progress=False)
-  part = dataclasses.replace(TINY, steps=4)
+  part = override(TINY, steps=4)
   nerf.train(scene, part, data, str(tmp_path / "split"), progress=False)
   summary = nerf.train(scene, TINY, data, str(tmp_path / "split"), progress=False)
   assert summary["resumed_from"] == 4
@@ -66,7 +66,7 @@ def test_resume_gives_the_same_parameters_as_one_run(tiny_blender, tmp_path):
 def test_run_dir_of_another_config_is_refused_and_kept(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   run = str(tmp_path / "run")
-  nerf.train(scene, dataclasses.replace(TINY, steps=2), data, run, progress=False)
+  nerf.train(scene, override(TINY, steps=2), data, run, progress=False)
   before = sorted(os.listdir(os.path.join(run, "checkpoints")))
   with pytest.raises(UserError, match="another config.*net_width"):
     nerf.train(scene, dataclasses.replace(TINY, net_width=16), data, run, progress=False)
@@ -78,7 +78,7 @@ def test_run_json_from_before_a_config_field_existed_resumes(tmp_path):
   from msnerf_jax.kinds import runs
   import json  # pylint: disable=g-import-not-at-top
   run = str(tmp_path / "run")
-  full = config_lib.to_dict(config_lib.MultistyleConfig(steps=5))
+  full = config_lib.to_dict(override(config_lib.MultistyleConfig(), steps=5))
   runs.prepare_run_dir(run, "multistyle", {"config": full})
   path = os.path.join(run, "run.json")
   record = json.load(open(path))
@@ -95,10 +95,34 @@ def test_run_json_from_before_a_config_field_existed_resumes(tmp_path):
     runs.prepare_run_dir(run, "multistyle", {"config": other})
 
 
+def test_run_json_from_before_the_optimisation_block_resumes(tmp_path):
+  """A run.json written when the optimisation settings sat at the top of each config (and of
+  its NeRF's) reads as the nested `optim` block, and resumes; a changed setting in it is
+  still refused."""
+  from msnerf_jax.core import config as config_lib  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.kinds import runs
+  import json  # pylint: disable=g-import-not-at-top
+  config = override(config_lib.MultistyleConfig(nerf=TINY), steps=5, lr_init=2e-3, seed=3)
+  flat = config_lib.to_dict(config)
+  for block in (flat, flat["nerf"]):
+    block.update(block.pop("optim"))
+  assert "steps" in flat and "optim" not in flat["nerf"]
+  assert config_lib.from_dict(config_lib.MultistyleConfig, flat) == config
+  run = str(tmp_path / "run")
+  os.makedirs(run)
+  with open(os.path.join(run, "run.json"), "w") as f:
+    json.dump({"kind": "multistyle", "config": flat}, f)
+  assert runs.prepare_run_dir(run, "multistyle", {"config": config_lib.to_dict(config)})
+  assert json.load(open(os.path.join(run, "run.json")))["config"]["optim"]["seed"] == 3
+  with pytest.raises(UserError, match=r"another config.*optim\.lr_init: saved 0.002, now 0.004"):
+    runs.prepare_run_dir(run, "multistyle",
+                         {"config": config_lib.to_dict(override(config, lr_init=4e-3))})
+
+
 def test_nan_loss_stops_with_the_step_and_keeps_checkpoint(tiny_blender, tmp_path):
   scene, data = load_scene(DataConfig(path=tiny_blender))
   run = str(tmp_path / "run")
-  nerf.train(scene, dataclasses.replace(TINY, steps=2), data, run, progress=False)
+  nerf.train(scene, override(TINY, steps=2), data, run, progress=False)
   bad = dataclasses.replace(scene, images=np.full_like(scene.images, np.nan))
   with pytest.raises(UserError, match=r"loss became nan at step 3.*step 2"):
     nerf.train(bad, TINY, data, run, progress=False)
@@ -107,7 +131,8 @@ def test_nan_loss_stops_with_the_step_and_keeps_checkpoint(tiny_blender, tmp_pat
 
 TWO_DEVICES = textwrap.dedent("""
     import os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2")
     import jax, numpy as np
     from msnerf_jax.core.config import DataConfig
     from msnerf_jax.data.scene import load_scene

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.core import config as config_lib
+from msnerf_jax.core.parallel import data_parallel
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.style import transfer as stylize_lib
 from msnerf_jax.models import decoder as decoder_lib
@@ -139,18 +140,17 @@ def main():
 
   if args.train_size:
     config = config_lib.AdainConfig(size=args.train_size, batch=args.train_batch)
-    step = train_adain.make_train_step(config)
-    p = decoder_lib.init_decoder(jax.random.PRNGKey(0))
-    opt = train_adain.make_optimizer(config).init(p)
+    step = train_adain.compile_train_step(config, data_parallel(1), enc)
+    state = train_adain.new_state(decoder_lib.init_decoder(jax.random.PRNGKey(0)), config)
     x = rng.random((args.train_batch, args.train_size, args.train_size, 3)).astype(np.float32)
     y = rng.random((args.train_batch, args.train_size, args.train_size, 3)).astype(np.float32)
     t = time.perf_counter()
-    p, opt, m = step(p, opt, enc, x, y)
+    state, m = step(state, (x, y, None, None))
     jax.block_until_ready(m)
     compile_s = time.perf_counter() - t
     t = time.perf_counter()
     for _ in range(args.train_steps):
-      p, opt, m = step(p, opt, enc, x, y)
+      state, m = step(state, (x, y, None, None))
       jax.block_until_ready(m)
     dt = (time.perf_counter() - t) / args.train_steps
     print(f"train {args.train_size}x{args.train_size} (style weight {config.style_weight:g}), "

@@ -16,7 +16,7 @@ import os
 import shutil
 
 from msnerf_jax.eval import evaluate
-from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.core.config import DataConfig, nerf_preset, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
 from common import DATA, machine, parse_overrides
@@ -36,7 +36,7 @@ def main():
   scene, data_config = load_scene(DataConfig(path=args.data, downscale=8))
   config = nerf_preset("cpu", "blender", checkpoint_every=args.eval_every,
                        **parse_overrides(args.set, "cpu"))
-  config = NerfConfig(**{**config.__dict__, "steps": 10**6})
+  config = override(config, steps=10**6)
   shutil.rmtree(args.out, ignore_errors=True)
   print(f"# lego 100x100, preset cpu {config}")
   print(f"# machine: {machine()}")

@@ -24,7 +24,7 @@ import shutil
 import time
 
 from msnerf_jax.eval import evaluate
-from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.core.config import DataConfig, nerf_preset, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.train import nerf
 from msnerf_jax.kinds.views import render_view
@@ -41,7 +41,7 @@ def bench(scene_name, preset, minutes, args):
                                              downscale=downscale))
   config = nerf_preset(preset, scene.format, checkpoint_every=args.eval_every,
                        **parse_overrides(args.set, preset))
-  config = nerf.resolve_config(NerfConfig(**{**config.__dict__, "steps": 10 ** 6}), scene)
+  config = nerf.resolve_config(override(config, steps=10 ** 6), scene)
   run_dir = os.path.join(args.out, f"{scene_name}_{preset}")
   shutil.rmtree(run_dir, ignore_errors=True)
   print(f"# {scene_name} {scene.height}x{scene.width}, preset {preset}: trunk {config.trunk}, "

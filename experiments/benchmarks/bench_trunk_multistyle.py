@@ -28,7 +28,7 @@ import numpy as np
 from msnerf_jax.eval import evaluate
 from msnerf_jax.kinds import runs
 from msnerf_jax.data import video
-from msnerf_jax.core.config import MultistyleConfig
+from msnerf_jax.core.config import MultistyleConfig, override
 from msnerf_jax.data.images import write_image
 from msnerf_jax.data.stylized import load_stylized
 from msnerf_jax.train import multistyle
@@ -39,8 +39,8 @@ from timed_training import train_within
 
 def bench(nerf_dir, stylized, minutes, args):
   nerf_run, scene = runs.load_run_and_scene(nerf_dir, "nerf")
-  config = MultistyleConfig(steps=10 ** 6, checkpoint_every=args.eval_every, keep_checkpoints=1,
-                            nerf=nerf_run.config)
+  config = override(MultistyleConfig(nerf=nerf_run.config), steps=10 ** 6,
+                    checkpoint_every=args.eval_every, keep_checkpoints=1)
   nerf_psnr = evaluate.evaluate_nerf(scene, nerf_run.params, nerf_run.config, "val",
                                      progress=False)[1]["psnr"]
   name = os.path.basename(os.path.normpath(nerf_dir))

@@ -21,7 +21,7 @@ import time
 import jax
 import numpy as np
 
-from msnerf_jax.core.config import DataConfig, NerfConfig, nerf_preset
+from msnerf_jax.core.config import DataConfig, nerf_preset, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.eval import metrics
 from msnerf_jax.kinds import baked as baked_run
@@ -63,7 +63,7 @@ def main():
   folder, downscale, split = SCENES[args.scene]
   scene, data = load_scene(DataConfig(path=os.path.join(args.data, folder), downscale=downscale))
   config = nerf_preset("fast", scene.format, checkpoint_every=args.checkpoint_every)
-  config = nerf.resolve_config(NerfConfig(**{**config.__dict__, "steps": 10 ** 7}), scene)
+  config = nerf.resolve_config(override(config, steps=10 ** 7), scene)
   run_dir = os.path.join(args.out, args.scene)
   shutil.rmtree(run_dir, ignore_errors=True)
   rows, _ = train_within(

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.eval import evaluate
+from msnerf_jax.eval import paths
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.eval import metrics
 from msnerf_jax.data import video
@@ -114,8 +115,8 @@ def main():
       picture = style_picture(spec, sources)
       image = at_view_size(picture)  # what the distances use; the baseline covers its own size.
       ours = [s[0] for s in render([resolve_style(spec, vectors, cache)])]
-      per_frame = evaluate.per_frame_adain(decoder, encoder, base, picture, 1.0,
-                                           scene.white_background, manifest["stylize_scale"])
+      per_frame = paths.per_frame_adain(decoder, encoder, base, picture, 1.0,
+                                        scene.white_background, manifest["stylize_scale"])
       d_ours, d_adain = distance(encoder, ours, image), distance(encoder, per_frame, image)
       rows.append({"style": os.path.basename(spec), "trained on": spec in vectors,
                    "multi-style": d_ours, "per-frame AdaIN": d_adain,

@@ -2,6 +2,7 @@
 
 import os
 
+from msnerf_jax.cli.common import add_parallel_arguments, start_processes
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
                                         config_overrides, start_config)
@@ -45,6 +46,7 @@ def _register_train(verbs, formatter):
                      help="run folder for run.json, checkpoints/ and samples/")
   add_config_arguments(train, config_lib.AdainConfig, _DEFAULTS, names=_MAIN)
   train.add_argument("--no-progress", action="store_true", help="no progress bar")
+  add_parallel_arguments(train)
   add_config_option(train, "AdaIN decoder")
   train.set_defaults(func=_train)
 
@@ -79,12 +81,16 @@ def _register_stylize(verbs, formatter):
 def _train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.train import adain as train_adain
+  shows = start_processes(args)
   paths = {name: os.path.abspath(getattr(args, name)) for name in ("init_from", "content_features")
            if getattr(args, name)}
   built = config_lib.override(config_lib.AdainConfig(),
                               **{**config_overrides(args, config_lib.AdainConfig), **paths})
   config = start_config(args, "adain", built)
-  train_adain.train(config, args.content, args.styles, args.out, progress=not args.no_progress)
+  train_adain.train(config, args.content, args.styles, args.out,
+                    progress=shows and not args.no_progress,
+                    log=print if shows else (lambda *_: None), n_devices=args.devices,
+                    parallel=args.parallel)
 
 
 def _stylize(args):

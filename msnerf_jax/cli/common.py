@@ -73,16 +73,19 @@ def load_run_and_scene(run_dir: str, kind: str):
   return runs.load_run_and_scene(run_dir, kind)
 
 
-def print_training_summary(title: str, summary, what: str, next_hint: str) -> None:
-  """The end-of-training block of a trainer's summary dict (see train.loop.fit)."""
+def print_training_summary(title: str, summary, what: str, next_hint: str,
+                           last_batch: str = "") -> None:
+  """The end-of-training block of a trainer's summary dict (see train.loop.fit); the last
+  batch's loss and PSNR followed by `what`, or `last_batch` where given."""
+  nan = float("nan")
   print_summary(title, [
       ("run", summary["run_dir"]),
       ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
       ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"
                + (f" of {summary['processes']} processes" if summary.get("processes", 1) > 1
                   else "")),
-      ("last batch", f"loss {summary.get('loss', float('nan')):.4f}, "
-                     f"PSNR {summary.get('psnr', float('nan')):.2f} dB{what}"),
+      ("last batch", last_batch or f"loss {summary.get('loss', nan):.4f}, "
+                                   f"PSNR {summary.get('psnr', nan):.2f} dB{what}"),
       ("next", next_hint)])
 
 

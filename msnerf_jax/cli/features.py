@@ -4,12 +4,9 @@ its runs render with `msnerf render --style IMG`)."""
 import os
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.cli.common import add_parallel_arguments, print_summary, start_processes
-from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
-                                        config_overrides, start_config)
-from msnerf_jax.core.errors import UserError
+from msnerf_jax.cli.common import print_training_summary
+from msnerf_jax.cli.config_args import add_trainer_options, trainer_config
 
-_DEFAULTS = config_lib.FeatureConfig()
 # The options `msnerf features train --help` lists first (--lr sets lr_init).
 _MAIN = ("stylize_scale", "steps", "batch_cells")
 
@@ -38,38 +35,23 @@ def register(commands, formatter):
   p.add_argument("--decoder", required=True,
                  help="AdaIN run folder (`msnerf adain train`) that will paint the features")
   p.add_argument("--out", required=True, help="run folder")
-  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS, names=_MAIN)
-  p.add_argument("--lr", type=float, default=None,
-                 help=f"initial learning rate, decaying exponentially to --lr-final at "
-                      f"--lr-decay-steps (default: {_DEFAULTS.lr_init})")
-  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS,
-                       names=("checkpoint_every", "seed"))
-  add_parallel_arguments(p)
-  add_config_option(p, "features")
-  add_config_arguments(p, config_lib.FeatureConfig, _DEFAULTS,
-                       title="every other feature-field setting",
-                       skip=_MAIN + ("lr_init", "checkpoint_every", "seed"))
+  add_trainer_options(p, config_lib.FeatureConfig, _MAIN + ("checkpoint_every", "seed"),
+                      len(_MAIN), "initial learning rate, decaying exponentially to --lr-final "
+                                  "at --lr-decay-steps", "features",
+                      "every other feature-field setting")
   p.set_defaults(func=cmd_train)
 
 
 def cmd_train(args):
   from msnerf_jax.train import features  # pylint: disable=g-import-not-at-top
-  shows = start_processes(args)
-  if os.path.isfile(args.out):
-    raise UserError(f"{args.out}: is a file, expected a run folder")
-  built = config_lib.override(config_lib.FeatureConfig(), lr_init=args.lr,
-                              **config_overrides(args, config_lib.FeatureConfig))
-  config = start_config(args, "features", built, {"lr_init": "lr"})
+  config, shows = trainer_config(args, config_lib.FeatureConfig, "features")
   summary = features.train(config, args.nerf, args.decoder, args.out, n_devices=args.devices,
                            parallel=args.parallel, progress=shows)
   if shows:
-    print_summary("feature training done", [
-        ("run", summary["run_dir"]),
-        ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
-        ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
-        ("last batch", f"MSE {summary.get('mse', float('nan')):.4f}, L1 "
-                       f"{summary.get('l1', float('nan')):.4f} (relu4_1)"
-                       + (f"; decoded patches MSE {summary['decode']:.4f}"
-                          if "decode" in summary else "")),
-        ("next", f"msnerf render --run {args.out} --style STYLE.jpg --out "
-                 f"{os.path.join(args.out, 'video')}")])
+    nan = float("nan")
+    print_training_summary(
+        "feature training done", summary, "",
+        f"msnerf render --run {args.out} --style STYLE.jpg --out "
+        f"{os.path.join(args.out, 'video')}",
+        f"MSE {summary.get('mse', nan):.4f}, L1 {summary.get('l1', nan):.4f} (relu4_1)"
+        + (f"; decoded patches MSE {summary['decode']:.4f}" if "decode" in summary else ""))

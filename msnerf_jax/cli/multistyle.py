@@ -5,10 +5,8 @@ import os
 import time
 
 from msnerf_jax.core import config as config_lib
-from msnerf_jax.cli.common import (add_parallel_arguments, load_run_and_scene, print_summary,
-                                   print_training_summary, start_processes)
-from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
-                                        config_overrides, start_config)
+from msnerf_jax.cli.common import load_run_and_scene, print_summary, print_training_summary
+from msnerf_jax.cli.config_args import add_trainer_options, trainer_config
 from msnerf_jax.core.errors import UserError
 
 _DEFAULTS = config_lib.MultistyleConfig()
@@ -77,15 +75,10 @@ def _register_multistyle(commands, formatter):
   p.add_argument("--nerf", required=True, help="NeRF run folder (`msnerf nerf train`)")
   p.add_argument("--stylized", required=True, help="dataset folder (`msnerf stylize-scene`)")
   p.add_argument("--out", required=True, help="run folder")
-  add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS, names=_MAIN[:3])
-  p.add_argument("--lr", type=float, default=None,
-                 help=f"initial learning rate, decaying exponentially to lr/10 at step "
-                      f"{_DEFAULTS.lr_decay_steps} (default: {_DEFAULTS.lr_init})")
-  add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS, names=_MAIN[3:])
-  add_parallel_arguments(p)
-  add_config_option(p, "multistyle")
-  add_config_arguments(p, config_lib.MultistyleConfig, _DEFAULTS,
-                       title="every other multi-style setting", skip=_MAIN + ("lr_init",))
+  add_trainer_options(p, config_lib.MultistyleConfig, _MAIN, 3,
+                      f"initial learning rate, decaying exponentially to lr/10 at step "
+                      f"{_DEFAULTS.optim.lr_decay_steps}", "multistyle",
+                      "every other multi-style setting")
   p.set_defaults(func=cmd_train)
 
   p = verbs.add_parser("eval", formatter_class=formatter,
@@ -132,15 +125,8 @@ def cmd_train(args):
   # pylint: disable=g-import-not-at-top
   from msnerf_jax.data.stylized import load_stylized
   from msnerf_jax.train import multistyle
-  shows = start_processes(args)
-  if os.path.isfile(args.out):
-    raise UserError(f"{args.out}: is a file, expected a run folder")
-  lr = {} if args.lr is None else {"lr_init": args.lr, "lr_final": args.lr / 10}
-  built = config_lib.override(config_lib.MultistyleConfig(**lr),
-                              **config_overrides(args, config_lib.MultistyleConfig))
   # --lr also sets lr_final (lr / 10) unless --lr-final is given.
-  config = start_config(args, "multistyle", built,
-                        {"lr_init": "lr", "lr_final": "lr_final" if args.lr_final else "lr"})
+  config, shows = trainer_config(args, config_lib.MultistyleConfig, "multistyle", 0.1)
   stylized = load_stylized(args.stylized, progress=shows)
   if shows:
     print(f"stylized dataset {args.stylized}: {len(stylized.names)} styles "

@@ -3,13 +3,11 @@ a style loss on rendered views (strokes that stay on the scene; render with `msn
 
 import os
 
-from msnerf_jax.cli.common import add_parallel_arguments, print_summary, start_processes
-from msnerf_jax.cli.config_args import (add_config_arguments, add_config_option,
-                                        config_overrides, start_config)
+from msnerf_jax.cli.common import print_summary, print_training_summary
+from msnerf_jax.cli.config_args import add_trainer_options, trainer_config
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.errors import UserError
 
-_DEFAULTS = config_lib.PaintConfig()
 # The options `msnerf paint train --help` lists first (--lr sets lr_init).
 _MAIN = ("steps", "init_steps", "resolution", "style_loss")
 
@@ -24,6 +22,11 @@ def register(commands, formatter):
                   "scene and stay there as the camera moves. Render with `msnerf render "
                   "--run RUN --style NAME`.")
   verbs = pt.add_subparsers(dest="verb", metavar="VERB", required=True)
+  _register_train(verbs, formatter)
+  _register_add(verbs, formatter)
+
+
+def _register_train(verbs, formatter):
   p = verbs.add_parser(
       "train", formatter_class=formatter,
       help="paint M styles in one run (re-run the same command to resume)",
@@ -38,19 +41,14 @@ def register(commands, formatter):
   p.add_argument("--styles", nargs="*", required=True, metavar="IMG",
                  help="style images, one colour field each (named by their file names)")
   p.add_argument("--out", required=True, help="run folder")
-  add_config_arguments(p, config_lib.PaintConfig, _DEFAULTS, names=_MAIN)
-  p.add_argument("--lr", type=float, default=None,
-                 help=f"initial learning rate, decaying exponentially to --lr-final at "
-                      f"--lr-decay-steps (default: {_DEFAULTS.lr_init})")
-  add_config_arguments(p, config_lib.PaintConfig, _DEFAULTS,
-                       names=("checkpoint_every", "seed"))
-  add_parallel_arguments(p)
-  add_config_option(p, "painted")
-  add_config_arguments(p, config_lib.PaintConfig, _DEFAULTS,
-                       title="every other painting setting",
-                       skip=_MAIN + ("lr_init", "checkpoint_every", "seed"))
+  add_trainer_options(p, config_lib.PaintConfig, _MAIN + ("checkpoint_every", "seed"),
+                      len(_MAIN), "initial learning rate, decaying exponentially to --lr-final "
+                                  "at --lr-decay-steps", "painted",
+                      "every other painting setting")
   p.set_defaults(func=cmd_train)
 
+
+def _register_add(verbs, formatter):
   a = verbs.add_parser(
       "add", formatter_class=formatter,
       help="add a new style to a painted run in minutes, without retraining it",
@@ -80,24 +78,16 @@ def register(commands, formatter):
 
 def cmd_train(args):
   from msnerf_jax.train import paint  # pylint: disable=g-import-not-at-top
-  shows = start_processes(args)
-  if os.path.isfile(args.out):
-    raise UserError(f"{args.out}: is a file, expected a run folder")
-  built = config_lib.override(config_lib.PaintConfig(), lr_init=args.lr,
-                              **config_overrides(args, config_lib.PaintConfig))
-  config = start_config(args, "painted", built, {"lr_init": "lr"})
+  config, shows = trainer_config(args, config_lib.PaintConfig, "painted")
   summary = paint.train(config, args.nerf, args.styles, args.out, n_devices=args.devices,
                         parallel=args.parallel, progress=shows)
   if shows:
-    term = config.style_loss
-    print_summary("painting done", [
-        ("run", summary["run_dir"]),
-        ("steps", f"{summary['steps']} (resumed from {summary['resumed_from']})"),
-        ("time", f"{summary['seconds']:.0f} s on {summary['devices']} device(s)"),
-        ("last batch", f"{term} {summary.get(term, float('nan')):.4f}, content "
-                       f"{summary.get('content', float('nan')):.3f}, MSE to the "
-                       f"colour-transferred photos {summary.get('mse', float('nan')):.4f}"),
-        ("next", f"msnerf render --run {args.out} --out {os.path.join(args.out, 'video')}")])
+    term, nan = config.style_loss, float("nan")
+    print_training_summary(
+        "painting done", summary, "",
+        f"msnerf render --run {args.out} --out {os.path.join(args.out, 'video')}",
+        f"{term} {summary.get(term, nan):.4f}, content {summary.get('content', nan):.3f}, MSE "
+        f"to the colour-transferred photos {summary.get('mse', nan):.4f}")
 
 
 def cmd_add(args):

@@ -43,7 +43,7 @@ def cmd_view(args):
   if not 0 <= args.port <= 65535:
     raise UserError(f"--port {args.port}: must be in 0..65535")
   try:
-    from msnerf_jax.viewer import server  # pylint: disable=g-import-not-at-top
+    from msnerf_jax.viewer import network, server  # pylint: disable=g-import-not-at-top
   except ImportError as e:
     raise UserError(f"the viewer needs viser ({e.name} is not installed): "
                     "pip install viser") from None
@@ -51,7 +51,7 @@ def cmd_view(args):
   viewer = server.open_viewer(args.run, args.out, args.host, args.port,
                               style_paths=args.styles, decoder_dir=args.decoder,
                               grids=args.grids, exact=args.exact)
-  where = ("this machine only" if server.is_loopback(args.host)
+  where = ("this machine only" if network.is_loopback(args.host)
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "
         f"{viewer.out_dir}. Ctrl-C stops.")

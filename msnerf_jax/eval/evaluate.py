@@ -27,25 +27,24 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from msnerf_jax.eval import consistency as consistency_lib
-from msnerf_jax.kinds import stylized_scenes
-from msnerf_jax.eval import metrics
 from msnerf_jax.core import files
-from msnerf_jax.style import transfer as stylize_lib
-from msnerf_jax.data import video
 from msnerf_jax.core.config import MultistyleConfig, NerfConfig
+from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data import images as images_lib
+from msnerf_jax.data import video
 from msnerf_jax.data.scene import Scene
 from msnerf_jax.data.stylized import StylizedData, read_manifest
-from msnerf_jax.style.vectors import style_vector_of
-from msnerf_jax.core.errors import UserError
-from msnerf_jax.models import vgg
-from msnerf_jax.kinds.runs import load_run, scene_of
+from msnerf_jax.eval import consistency as consistency_lib
+from msnerf_jax.eval import metrics
+from msnerf_jax.eval import paths
+from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.kinds.multistyle import style_vectors
-from msnerf_jax.kinds.features import feature_painting
-from msnerf_jax.kinds.painted import render_painted
-from msnerf_jax.kinds.views import render_feature_styles, render_styles, render_view
-from msnerf_jax.core.progress import progress_bar
+from msnerf_jax.kinds.runs import load_run, scene_of
+from msnerf_jax.kinds.views import render_styles, render_view
+from msnerf_jax.models import vgg
+from msnerf_jax.style import transfer as stylize_lib
+
 
 def evaluate_nerf(scene: Scene, params, config: NerfConfig, split: str = "val",
                   chunk: Optional[int] = None, progress: bool = True):
@@ -117,67 +116,6 @@ def score(frames, depths, accs, poses, K, ndc, style_image, encoder, lpips_param
   return row
 
 
-def per_frame_adain(decoder, encoder, base: Sequence[Dict[str, np.ndarray]], style: np.ndarray,
-                    alpha: float, white_background: bool, scale: int = 1) -> List[np.ndarray]:
-  """The per-frame AdaIN baseline: each NeRF render in `base` stylized on its own, at the
-  stylized dataset's `scale` (its manifest's stylize_scale); on white-background (Blender)
-  scenes the background is put back to white, as in the stylized training views."""
-  frames = [stylize_lib.stylize_image(decoder, encoder, b["rgb"], [style], alpha=alpha,
-                                      scale=scale) for b in base]
-  if white_background:
-    frames = [f * b["accumulation"][..., None] + (1.0 - b["accumulation"][..., None])
-              for f, b in zip(frames, base)]
-  return frames
-
-
-def feature_field_frames(field, scene, base, base_nerf: str, encoder,
-                         pictures: Sequence[np.ndarray], alphas: Sequence[float],
-                         chunk: Optional[int] = None, progress: bool = False):
-  """(frames [K][P], geometry [P]) of a loaded feature run in K styles along the P cameras
-  `base` was rendered on, one feature render per camera: each style's statistics from its
-  picture cover-cropped to the decoded size (as per-frame AdaIN crops it), at its strength
-  alpha (a blend towards the scene's own statistics), the features painted by the run's
-  decoder; on white-background scenes the background is put back to white by the NeRF's
-  opacity, as per_frame_adain does. The geometry is `base`'s when the field was trained on
-  that NeRF run (`base_nerf`), else its own NeRF's renders."""
-  decoder = stylized_scenes.load_decoder(field.record["decoder"])
-  stats, original, size = feature_painting(field, scene)
-  vectors = np.stack([alpha * style_vector_of(encoder, p, size) + (1.0 - alpha) * original
-                      for p, alpha in zip(pictures, alphas)])
-  geometry = base
-  if os.path.abspath(field.record["nerf_run"]) != os.path.abspath(base_nerf):
-    geometry = [render_view(scene, field.params["nerf"], field.config.nerf, b["pose"], chunk)
-                for b in base]
-  frames = [[] for _ in vectors]
-  for b, g in zip(progress_bar(base, desc="feature-field path", disable=not progress,
-                               leave=False), geometry):
-    sweep = render_feature_styles(scene, field.params, field.config, b["pose"], decoder, stats,
-                                  vectors, chunk)
-    if scene.white_background:
-      sweep = images_lib.over_background(sweep, g["accumulation"][..., None])
-    for k, frame in enumerate(sweep):
-      frames[k].append(frame)
-  return frames, geometry
-
-
-def painted_frames(run, scene, base, base_nerf: str, chunk: Optional[int] = None,
-                   progress: bool = False):
-  """({style name: frames [P]}, geometry [P]) of a loaded painted run along the P cameras
-  `base` was rendered on, all its styles in one render per camera; the geometry is `base`'s
-  when it was painted on that NeRF run (`base_nerf`), else its own NeRF's renders."""
-  names = run.record["styles"]
-  frames = {n: [] for n in names}
-  same = os.path.abspath(run.record["nerf_run"]) == os.path.abspath(base_nerf)
-  geometry = []
-  for b in progress_bar(base, desc="painted path", disable=not progress, leave=False):
-    for name, frame in zip(names, render_painted(scene, run.params, run.config, b["pose"],
-                                                 chunk)["rgb"]):
-      frames[name].append(frame)
-    geometry.append(b if same else render_view(scene, run.params["nerf"], run.config.nerf,
-                                               b["pose"], chunk))
-  return frames, geometry
-
-
 def markdown_table(rows: Sequence[Dict[str, Any]], columns: Sequence[str]) -> List[str]:
   """Lines of a Markdown table of `rows` (floats with 4 decimals)."""
   fmt = lambda v: f"{v:.4f}" if isinstance(v, float) else str(v)
@@ -223,47 +161,26 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   sources = {s["name"]: s for s in manifest["styles"] if s["source"]}
   vectors = [style_vectors(r) for r in runs]
   names = _evaluated_styles(run_dirs, vectors, sources, styles)
-  singles = _single_style_runs(single_style_runs, names)
+  others = (paths.single_style_runs(single_style_runs, names),
+            [load_run(d, "features") for d in feature_runs],
+            [load_run(d, "painted") for d in painted_runs])
   decoder = _decoder_of(run, manifest, decoder_dir)
   nerf_run = load_run(run.record["nerf_run"], "nerf")
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
-  poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
-                             .round().astype(int)] if frames else scene.render_poses
-  methods = method_labels(runs)
-  fields = [load_run(d, "features") for d in feature_runs]
-
-  # The NeRF renders (geometry and the frames the per-frame baseline stylizes).
-  base = [{**render_view(scene, nerf_run.params, nerf_run.config, c2w, chunk), "pose": c2w}
-          for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
-  swept = _multistyle_sweeps(runs, vectors, names, methods, scene, poses, chunk, progress)
+  poses = paths.path_poses(scene, frames)
+  base = paths.nerf_path(scene, nerf_run.params, nerf_run.config, poses, chunk, progress)
   pictures = [images_lib.read_image(sources[n]["source"], max_side=1024) for n in names]
-  # Every style from one feature render per view, for each feature run.
-  painted = [feature_field_frames(field, scene, base, run.record["nerf_run"], encoder, pictures,
-                                  [sources[n]["alpha"] for n in names], chunk, progress)
-             for field in fields]
-  painted_paths = [painted_frames(load_run(d, "painted"), scene, base, run.record["nerf_run"],
-                                  chunk, progress) for d in painted_runs]
+  methods = _method_paths(runs, vectors, names, scene, poses, base, pictures, sources,
+                          encoder, *others, chunk, progress)
   rows, figure_rows = [], []
   for m, name in enumerate(progress_bar(names, desc="scoring styles", disable=not progress)):
-    picture = pictures[m]
-    style = stylize_lib.cover_crop(picture, scene.height, scene.width)  # what distances use.
-    per_frame = per_frame_adain(decoder, encoder, base, picture, sources[name]["alpha"],
-                                scene.white_background, manifest["stylize_scale"])
-    candidates = [(method, [s["rgb"][m] for s in sw],
-                   [{"depth": s["depth"][m], "accumulation": s["accumulation"][m]} for s in sw])
-                  for method, sw in zip(methods, swept)]
-    if name in singles:
-      candidates.append(_single_style_frames(singles[name], name, scene, poses, chunk,
-                                             progress))
-    for i, (frames_k, geometry) in enumerate(painted):
-      label = "feature-field" + (f"#{i + 1}" if len(painted) > 1 else "")
-      candidates.append((label, frames_k[m], geometry))
-    for i, (frames_by_name, geometry) in enumerate(painted_paths):
-      if name in frames_by_name:
-        label = "painted" + (f"#{i + 1}" if len(painted_paths) > 1 else "")
-        candidates.append((label, frames_by_name[name], geometry))
-    candidates.append(("adain-per-frame", per_frame, base))
-    for label, frames_, geometry in candidates:
+    style = stylize_lib.cover_crop(pictures[m], scene.height, scene.width)  # what distances use.
+    per_frame = paths.per_frame_adain(decoder, encoder, base, pictures[m],
+                                      sources[name]["alpha"], scene.white_background,
+                                      manifest["stylize_scale"])
+    for label, frames_, geometry in [(label, by_name[name], geometry[name])
+                                     for label, by_name, geometry in methods
+                                     if name in by_name] + [("adain-per-frame", per_frame, base)]:
       rows.append({"method": label, "style": name,
                    **score(frames_, [g["depth"] for g in geometry],
                            [g["accumulation"] for g in geometry], poses, scene.K, scene.ndc,
@@ -274,20 +191,36 @@ def evaluate_run(run_dirs, out_dir: str, styles: Optional[Sequence[str]] = None,
   return {"rows": rows, "files": files, "seconds": time.time() - t0}
 
 
+def _method_paths(runs, vectors, names, scene, poses, base, pictures, sources, encoder,
+                  singles, fields, painters, chunk, progress) -> List[paths.Path]:
+  """The Paths of every method but per-frame AdaIN, in the order of the table's rows: the
+  multi-style runs, the single-style NeRFs ({style: run}), the loaded feature runs, the
+  loaded painted runs."""
+  nerf_dir = runs[0].record["nerf_run"]
+  methods = paths.multistyle_paths(runs, vectors, names, method_labels(runs), scene, poses,
+                                   chunk, progress)
+  methods += [paths.single_style_path(singles[n], n, scene, poses, chunk, progress)
+              for n in names if n in singles]
+  numbered = lambda label, i, count: label + (f"#{i + 1}" if count > 1 else "")
+  for i, field in enumerate(fields):  # every style from one feature render per view
+    frames_k, geometry = paths.feature_field_frames(
+        field, scene, base, nerf_dir, encoder, pictures, [sources[n]["alpha"] for n in names],
+        chunk, progress)
+    methods.append((numbered("feature-field", i, len(fields)), dict(zip(names, frames_k)),
+                    {n: geometry for n in names}))
+  for i, painter in enumerate(painters):
+    by_name, geometry = paths.painted_frames(painter, scene, base, nerf_dir, chunk, progress)
+    methods.append((numbered("painted", i, len(painters)), by_name,
+                    {n: geometry for n in by_name}))
+  return methods
+
+
 def _decoder_of(run, manifest, decoder_dir):
   """The AdaIN decoder of the per-frame baseline: `decoder_dir`, or the stylized dataset's."""
   decoder_dir = decoder_dir or manifest.get("decoder")
   if not decoder_dir:
     raise UserError(f"{run.record['stylized']}: no decoder recorded; pass --decoder ADAIN_RUN")
   return stylized_scenes.load_decoder(decoder_dir)
-
-
-def _multistyle_sweeps(runs, vectors, names, methods, scene, poses, chunk, progress):
-  """Per multi-style run, its render of every path camera in all `names` styles at once."""
-  stack = [np.stack([v[n] for n in names]) for v in vectors]
-  return [[render_styles(scene, r.params, r.config, c2w, s, chunk)
-           for c2w in progress_bar(poses, desc=f"{m} path", disable=not progress, leave=False)]
-          for r, s, m in zip(runs, stack, methods)]
 
 
 def _evaluated_styles(run_dirs, vectors, sources, styles) -> List[str]:
@@ -300,30 +233,6 @@ def _evaluated_styles(run_dirs, vectors, sources, styles) -> List[str]:
         raise UserError(f"style {name!r}: not a stylized training style of {d} "
                         f"(has {', '.join(n for n in v if n in sources)})")
   return names
-
-
-def _single_style_runs(run_dirs: Sequence[str], names: Sequence[str]) -> Dict[str, Any]:
-  """style name -> the loaded NeRF run trained on that style alone, each checked."""
-  singles = {}
-  for d in run_dirs:
-    single = load_run(d)
-    style = single.record.get("style") or {}
-    if single.kind != "nerf" or "name" not in style:
-      raise UserError(f"{d}: not a single-style NeRF run (train one with `msnerf nerf train "
-                      "--stylized DIR --style NAME`)")
-    if style["name"] not in names:
-      raise UserError(f"{d}: trained on style {style['name']!r}, which is not evaluated here "
-                      f"({', '.join(names)})")
-    singles[style["name"]] = single
-  return singles
-
-
-def _single_style_frames(single, name, scene, poses, chunk, progress):
-  """(label, frames, geometry) of a single-style NeRF along the path."""
-  renders = [render_view(scene, single.params, single.config, c2w, chunk)
-             for c2w in progress_bar(poses, desc=f"single-style {name}", disable=not progress,
-                                     leave=False)]
-  return "nerf-single-style", [r["rgb"] for r in renders], renders
 
 
 def write_tables(rows: List[Dict[str, Any]], out_dir: str,

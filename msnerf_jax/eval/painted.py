@@ -23,12 +23,11 @@ from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import video
 from msnerf_jax.eval import metrics
-from msnerf_jax.eval.evaluate import (markdown_table, painted_frames, per_frame_adain, score,
-                                      write_tables)
+from msnerf_jax.eval.evaluate import markdown_table, score, write_tables
+from msnerf_jax.eval.paths import nerf_path, painted_frames, path_poses, per_frame_adain
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.kinds.painted import render_painted
 from msnerf_jax.kinds.runs import load_run, scene_of
-from msnerf_jax.kinds.views import render_view
 from msnerf_jax.models import vgg
 from msnerf_jax.style import adain as adain_lib
 
@@ -85,16 +84,14 @@ def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int =
   scene, _ = scene_of(run)
   decoder = stylized_scenes.load_decoder(decoder_dir)
   encoder, lpips_params = vgg.load_vgg_params(), metrics.load_lpips_params()
-  poses = scene.render_poses[np.linspace(0, len(scene.render_poses) - 1, frames)
-                             .round().astype(int)]
+  poses = path_poses(scene, frames)
   files_of = dict(zip(run.record["styles"], run.record["style_files"]))
   names = list(styles) if styles else list(run.record["styles"])
   for name in names:
     if name not in files_of:
       raise UserError(f"style {name!r}: not a painted style of {run_dir} "
                       f"({', '.join(files_of)})")
-  base = [{**render_view(scene, run.params["nerf"], run.config.nerf, c2w, chunk), "pose": c2w}
-          for c2w in progress_bar(poses, desc="NeRF path", disable=not progress, leave=False)]
+  base = nerf_path(scene, run.params["nerf"], run.config.nerf, poses, chunk, progress)
   by_name, _ = painted_frames(run, scene, base, run.record["nerf_run"], chunk, progress)
   painted = [by_name[n] for n in names]
   noise = random_texture(run)
@@ -104,33 +101,46 @@ def evaluate_painted(run_dir: str, decoder_dir: str, out_dir: str, frames: int =
                                scale) for picture in progress_bar(
                                    pictures, desc="per-frame AdaIN", disable=not progress,
                                    leave=False)]
-  depths, accs = [b["depth"] for b in base], [b["accumulation"] for b in base]
+  scored = lambda frames_, style: {
+      **score(frames_, [b["depth"] for b in base], [b["accumulation"] for b in base], poses,
+              scene.K, scene.ndc, style, encoder, lpips_params),
+      "content": content_loss(encoder, frames_, [b["rgb"] for b in base])}
+  rows, figure = _rows(names, painted, per_frame, texture, base, pictures, scene, encoder,
+                       scored)
+  os.makedirs(out_dir, exist_ok=True)
+  files = write_tables(rows, out_dir, COLUMNS)
+  files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure))
+  return {"rows": rows, "ratios": ratios_of(rows, names), "files": files,
+          "seconds": time.time() - t0}
+
+
+def _rows(names, painted, per_frame, texture, base, pictures, scene, encoder, scored):
+  """(the table's rows: painted and per-frame AdaIN in each style, then the two floors;
+  the figure's rows of 4 frames each), `scored(frames, style picture)` a row's numbers."""
   photos = [b["rgb"] for b in base]
   rows, figure = [], []
   distinct = {"painted": distinctness(encoder, painted), BASELINE: distinctness(encoder, per_frame)}
   for m, name in enumerate(names):
     style = images_lib.cover_crop(pictures[m], scene.height, scene.width)
     for method, frames_ in (("painted", painted[m]), (BASELINE, per_frame[m])):
-      rows.append({"method": method, "style": name,
-                   **score(frames_, depths, accs, poses, scene.K, scene.ndc, style, encoder,
-                           lpips_params),
-                   "content": content_loss(encoder, frames_, photos),
+      rows.append({"method": method, "style": name, **scored(frames_, style),
                    "distinct": distinct[method]})
       figure.append(list(frames_[:: max(1, len(frames_) // 4)][:4]))
   for method, frames_ in (("floor: photo-real NeRF", photos), ("floor: random texture", texture)):
-    rows.append({"method": method, "style": "-",
-                 **score(frames_, depths, accs, poses, scene.K, scene.ndc, photos[0], encoder,
-                         lpips_params), "content": content_loss(encoder, frames_, photos),
+    rows.append({"method": method, "style": "-", **scored(frames_, photos[0]),
                  "distinct": float("nan")})
+  return rows, figure
+
+
+def ratios_of(rows: Sequence[Dict[str, Any]], names: Sequence[str]
+              ) -> Dict[str, Dict[str, float]]:
+  """{style: {column: painted / per-frame, "COLUMN_over_floor": (painted - floor) /
+  (per-frame - floor) for the consistency columns}} of `_rows`' table."""
   floor = rows[2 * len(names)]  # the photo-real NeRF's own figures
-  ratios = {name: {**{c: rows[2 * m][c] / rows[2 * m + 1][c] for c in COLUMNS[2:]},
-                   **{f"{c}_over_floor": (rows[2 * m][c] - floor[c])
-                      / (rows[2 * m + 1][c] - floor[c]) for c in CONSISTENCY}}
-            for m, name in enumerate(names)}
-  os.makedirs(out_dir, exist_ok=True)
-  files = write_tables(rows, out_dir, COLUMNS)
-  files.append(video.write_grid(os.path.join(out_dir, "frames.png"), figure))
-  return {"rows": rows, "ratios": ratios, "files": files, "seconds": time.time() - t0}
+  return {name: {**{c: rows[2 * m][c] / rows[2 * m + 1][c] for c in COLUMNS[2:]},
+                 **{f"{c}_over_floor": (rows[2 * m][c] - floor[c])
+                    / (rows[2 * m + 1][c] - floor[c]) for c in CONSISTENCY}}
+          for m, name in enumerate(names)}
 
 
 def ratio_table(ratios: Dict[str, Dict[str, float]]) -> List[str]:

@@ -117,7 +117,9 @@ def write_summary(run_dir: str, summary: Dict[str, Any]) -> None:
 
 def _defining(record: Dict[str, Any]) -> Dict[str, Any]:
   record = json.loads(json.dumps(record))  # deep copy, tuples -> lists
-  record.get("config", {}).pop("steps", None)
+  config = record.get("config", {})
+  config.pop("steps", None)  # an AdaIN run's
+  config.get("optim", {}).pop("steps", None)
   record.pop("summary", None)
   return record
 

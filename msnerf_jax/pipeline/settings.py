@@ -55,20 +55,23 @@ def nerf_config(s: Settings, scene_format: str) -> config_lib.NerfConfig:
 
 
 def multistyle_config(s: Settings) -> config_lib.MultistyleConfig:
-  return config_lib.MultistyleConfig(steps=s.ms_steps, batch_rays=s.ms_batch_rays, seed=s.seed,
-                                     checkpoint_every=max(1, min(500, s.ms_steps)))
+  return config_lib.override(config_lib.MultistyleConfig(), steps=s.ms_steps,
+                             batch_rays=s.ms_batch_rays, seed=s.seed,
+                             checkpoint_every=max(1, min(500, s.ms_steps)))
 
 
 def feature_config(s: Settings) -> config_lib.FeatureConfig:
-  return config_lib.FeatureConfig(steps=s.features_steps, batch_cells=s.features_batch_cells,
-                                  lr_decay_steps=max(1, s.features_steps), seed=s.seed,
-                                  checkpoint_every=max(1, min(500, s.features_steps)))
+  return config_lib.override(config_lib.FeatureConfig(), steps=s.features_steps,
+                             batch_cells=s.features_batch_cells,
+                             lr_decay_steps=max(1, s.features_steps), seed=s.seed,
+                             checkpoint_every=max(1, min(500, s.features_steps)))
 
 
 def paint_config(s: Settings) -> config_lib.PaintConfig:
-  return config_lib.PaintConfig(steps=s.paint_steps, init_steps=min(100, s.paint_steps // 10),
-                                lr_decay_steps=max(1, s.paint_steps), seed=s.seed,
-                                checkpoint_every=max(1, min(250, s.paint_steps)))
+  return config_lib.override(config_lib.PaintConfig(), steps=s.paint_steps,
+                             init_steps=min(100, s.paint_steps // 10),
+                             lr_decay_steps=max(1, s.paint_steps), seed=s.seed,
+                             checkpoint_every=max(1, min(250, s.paint_steps)))
 
 
 def render_files(s: Settings) -> Tuple[str, ...]:

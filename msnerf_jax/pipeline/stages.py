@@ -126,7 +126,7 @@ def _nerf_steps(c: Context) -> int:
   if s.nerf_steps:
     return s.nerf_steps
   return config_lib.nerf_preset(s.preset, detect_format(c.data) if s.format == "auto"
-                                else s.format).steps
+                                else s.format).optim.steps
 
 
 def _run_nerf(c: Context):

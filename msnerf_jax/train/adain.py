@@ -5,14 +5,13 @@ import functools
 import math
 import os
 import time
-from typing import Any, Dict, Sequence
+from typing import Any, Callable, Dict, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-from msnerf_jax.style import adain as adain_lib
 from msnerf_jax.core import checkpoint as checkpoint_lib
 from msnerf_jax.core import files
 from msnerf_jax.kinds import runs as runs_lib
@@ -23,19 +22,23 @@ from msnerf_jax.core.errors import UserError
 from msnerf_jax.style.features import CELL, painted_size
 from msnerf_jax.models import decoder as decoder_lib
 from msnerf_jax.models import vgg
-from msnerf_jax.core.parallel import data_parallel
+from msnerf_jax.core import distributed
+from msnerf_jax.core.parallel import DataParallel, data_parallel
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import state as state_lib
 from msnerf_jax.train.adain_data import (PrefetchedBatches, collect_content, feature_batch,
-                                         feature_source, load_for_crops, prepare_feature_maps,
-                                         random_crops, random_feature_crops)
-from msnerf_jax.train.adain_losses import adain_targets, losses
+                                         feature_source, load_for_crops, prepare_feature_maps)
+from msnerf_jax.train.adain_losses import losses
+from msnerf_jax.train.adain_samples import sample_grid, sample_painter
 
 KIND = "adain"
 
 
+@functools.lru_cache(maxsize=8)
 def make_optimizer(config: config_lib.AdainConfig) -> optax.GradientTransformation:
-  """Adam with the reference code's lr / (1 + decay * step)."""
+  """Adam with the reference code's lr / (1 + decay * step). Cached per (frozen) config: a
+  TrainState holds its optimizer as static data, so the same object lets a resumed or
+  repeated run in one process reuse the compiled step."""
   schedule = lambda count: config.lr / (1.0 + config.lr_decay * count)
   return optax.adam(schedule)
 
@@ -48,60 +51,54 @@ def step_config(config: config_lib.AdainConfig) -> config_lib.AdainConfig:
                              content_features="", feature_share=0.5)
 
 
+def new_state(params, config: config_lib.AdainConfig) -> state_lib.TrainState:
+  """A TrainState of decoder params with the run's Adam; its step an int64, as AdaIN
+  checkpoints hold it."""
+  state = state_lib.create_state(params, make_optimizer(step_config(config)))
+  return state.replace(step=np.asarray(0, np.int64))
+
+
+def train_step(state: state_lib.TrainState, batch, encoder_params, *,
+               config: config_lib.AdainConfig, axis_name: Optional[str] = None):
+  """One Adam step on the decoder: batch = (content, style, shifts, features) as `losses`
+  takes them (this device's rows, `device_rows`), gradients and metrics averaged over the
+  devices. Returns (state, metrics); the state's step is the caller's to count."""
+  grads, metrics = jax.grad(losses, has_aux=True)(state.params, encoder_params, *batch[:2],
+                                                  config, *batch[2:])
+  if axis_name is not None:
+    grads = jax.lax.pmean(grads, axis_name)
+    metrics = jax.lax.pmean(metrics, axis_name)
+  return state.apply_gradients(grads=grads), metrics
+
+
 @functools.lru_cache(maxsize=8)
-def make_train_step(config: config_lib.AdainConfig):
-  """jitted (params, opt_state, encoder_params, content, style[, shifts, features]) ->
-  (params, opt_state, metrics).
-
-  Cached per (frozen) config, so a resumed or repeated run in one process compiles once.
-  """
-  optimizer = make_optimizer(config)
-
-  def step(params, opt_state, encoder_params, content, style, shifts=None, features=None):
-    grads, metrics = jax.grad(losses, has_aux=True)(params, encoder_params, content, style, config,
-                                                    shifts, features)
-    updates, opt_state = optimizer.update(grads, opt_state, params)
-    return optax.apply_updates(params, updates), opt_state, metrics
-
-  return jax.jit(step, donate_argnums=(0, 1))
+def _per_device_step(config: config_lib.AdainConfig):
+  """train_step for a step_config, one object per config (so compiles are reused)."""
+  return functools.partial(train_step, config=config)
 
 
-@functools.lru_cache(maxsize=4)
-def make_stylize_fn(upsample: str):
-  """jitted (decoder_params, encoder_params, content [B,H,W,3], style [B,H',W',3]) -> [B,H,W,3]."""
-
-  def fn(decoder_params, encoder_params, content, style):
-    feats = adain_lib.encode(encoder_params, content)["relu4_1"]
-    style_feats = adain_lib.encode(encoder_params, style)["relu4_1"]
-    return decoder_lib.paint(decoder_params, adain_lib.adain(feats, style_feats), upsample)
-
-  return jax.jit(fn)
+def compile_train_step(config: config_lib.AdainConfig, parallel: DataParallel,
+                       encoder_params) -> Callable:
+  """`(state, batch) -> (state, metrics)`: train_step compiled for `parallel`'s devices, the
+  frozen encoder placed once on each. Takes the state and batch as parallel.put_state and
+  put_batch place them (the batch's rows ordered by `device_rows`)."""
+  return parallel.compile(_per_device_step(step_config(config)), (encoder_params,))
 
 
-@functools.lru_cache(maxsize=4)
-def make_feature_stylize_fn(upsample: str):
-  """jitted (decoder_params, encoder_params, normalised features [B,h,w,512], stats [2, 512],
-  style [B,H,W,3]) -> (the features decoded unstylized, stylized), each [B, 8h, 8w, 3]."""
-
-  def fn(decoder_params, encoder_params, features, stats, style):
-    mean, std = adain_lib.channel_stats(adain_lib.encode(encoder_params, style)["relu4_1"])
-    decode = lambda t: decoder_lib.paint(decoder_params, t, upsample)
-    own = [jnp.broadcast_to(x, mean.shape) for x in stats]  # AdaIN towards the scene: identity.
-    return (decode(adain_targets(encoder_params, None, features, *own)),
-            decode(adain_targets(encoder_params, None, features, mean, std)))
-
-  return jax.jit(fn)
-
-
-def sample_grid(content: np.ndarray, style: np.ndarray, output: np.ndarray) -> np.ndarray:
-  """Rows of (content | style | output) with 4-pixel white gaps: [B*S + gaps, 3*S + gaps, 3]."""
-  rows = []
-  gap = 4
-  for c, s, o in zip(content, style, output):
-    sep = np.ones((c.shape[0], gap, 3), np.float32)
-    rows.append(np.concatenate([c, sep, s, sep, o], axis=1))
-    rows.append(np.ones((gap, rows[-1].shape[1], 3), np.float32))
-  return np.concatenate(rows[:-1], axis=0)
+def device_rows(batch, n_devices: int):
+  """The batch (content [P], style [B], shifts [B], features [F] or None) with the style and
+  shift rows reordered so that splitting every array into `n_devices` consecutive blocks
+  gives each device its photos' and its feature crops' styles in the order `losses` reads
+  them (its P / n photos' first). One device: the batch as it is."""
+  content, style, shifts, features = batch
+  if n_devices == 1:
+    return batch
+  p = 0 if content is None else content.shape[0] // n_devices
+  f = 0 if features is None else features.shape[0] // n_devices
+  photos = n_devices * p
+  order = np.concatenate([np.r_[d * p:(d + 1) * p, photos + d * f:photos + (d + 1) * f]
+                          for d in range(n_devices)])
+  return content, style[order], None if shifts is None else shifts[order], features
 
 
 def _all_finite(tree) -> bool:
@@ -149,8 +146,8 @@ def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence
       raise UserError("--content: give at least one content folder (or --content-features)")
     return None
   if feature_batch(config) < config.batch and not content_dirs:
-    raise UserError(f"--content: needed for the photo share of each batch "
-                    f"(or --feature-share 1)")
+    raise UserError("--content: needed for the photo share of each batch "
+                    "(or --feature-share 1)")
   if config.shift_weight > 0 and config.shift_source != "features":
     raise UserError(f"--shift-source {config.shift_source}: feature crops have no pixels to "
                     f"move; use --shift-source features with --content-features")
@@ -163,53 +160,26 @@ def check_feature_content(config: config_lib.AdainConfig, content_dirs: Sequence
   return source
 
 
-def sample_painter(config: config_lib.AdainConfig, encoder_params, content_pools, style_pools,
-                   feature_maps, feature_stats):
-  """(painted(params) -> (content column, outputs), the style crops) of the fixed sample
-  crops (up to 4) the trainer paints every sample_every steps. Without photos in a batch the
-  content column is the unstylized decode of the feature crops."""
-  sample_rng = np.random.default_rng([config.seed, 10**9])
-  n_samples = min(4, config.batch)
-  if feature_batch(config) == config.batch:
-    stylize_features = make_feature_stylize_fn(config.upsample)
-    sample_features = random_feature_crops(sample_rng, feature_maps, n_samples, config.size // CELL)
-    sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
-
-    def painted(params):
-      return tuple(map(np.asarray, stylize_features(params, encoder_params, sample_features,
-                                                    feature_stats, sample_style)))
-    return painted, sample_style
-  stylize = make_stylize_fn(config.upsample)
-  sample_content = random_crops(sample_rng, content_pools, n_samples, config.size)
-  sample_style = random_crops(sample_rng, style_pools, n_samples, config.size)
-
-  def painted(params):
-    return sample_content, np.asarray(stylize(params, encoder_params, sample_content,
-                                              sample_style))
-  return painted, sample_style
-
-
 class _Hooks:
   """The trainer's step and the loop's hook after it: the last good checkpoint, the last step
   that passed the checks and its metrics, the throughput clock (from the second step: the
-  first compiles), the sample pictures."""
+  first compiles), the sample pictures (process 0)."""
 
-  def __init__(self, config, run_dir, encoder_params, painted, sample_style, start):
-    self.config, self.run_dir, self.encoder_params = config, run_dir, encoder_params
+  def __init__(self, config, run_dir, encoder_params, painted, sample_style, start,
+               parallel: DataParallel):
+    self.config, self.run_dir, self.parallel = config, run_dir, parallel
     self.painted, self.sample_style = painted, sample_style
-    self.train_step = make_train_step(step_config(config))
+    self.train_step = compile_train_step(config, parallel, encoder_params)
     self.last_good, self.done, self.metrics = start, start or 0, {}
     self.timed_from, self.timed_steps = None, 0
 
   def step(self, state, batch):
-    params, opt_state, m = self.train_step(state.params, state.opt_state, self.encoder_params,
-                                           *batch)
-    return state.replace(step=np.asarray(state.step + 1, np.int64), params=params,
-                         opt_state=opt_state), m
+    state, m = self.train_step(state, batch)
+    return state.replace(step=np.asarray(self.done + 1, np.int64)), m
 
   def on_step(self, step, state, m):  # before the loop's loss check and this step's checkpoint.
     config, run_dir = self.config, self.run_dir
-    values = {k: float(v) for k, v in m.items()}
+    values = {k: float(v) for k, v in self.parallel.to_host(m).items()}
     if not all(math.isfinite(v) for v in values.values()):
       where = os.path.abspath(os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR))
       last = "step " + str(self.last_good) if self.last_good is not None else "none"
@@ -220,12 +190,15 @@ class _Hooks:
       self.timed_from = time.time()
     else:
       self.timed_steps += 1
-    if step % config.sample_every == 0 or step == config.steps:
-      content, out = self.painted(state.params)
+    sample = step % config.sample_every == 0 or step == config.steps
+    checkpoint = step % config.checkpoint_every == 0 or step == config.steps
+    params = self.parallel.to_host(state.params) if sample or checkpoint else None
+    if sample and distributed.is_primary():
+      content, out = self.painted(params)
       images_lib.write_image(os.path.join(run_dir, "samples", f"step_{step:07d}.png"),
                              sample_grid(content, self.sample_style, out))
-    if step % config.checkpoint_every == 0 or step == config.steps:  # the loop saves it next.
-      if not _all_finite(state.params):
+    if checkpoint:  # the loop saves it next.
+      if not _all_finite(params):
         raise UserError(f"{run_dir}: parameters became NaN/inf by step {step}; stopped, "
                         f"last good checkpoint: step {self.last_good}")
       self.last_good = step
@@ -253,10 +226,23 @@ def _read_inputs(config, content_dirs, style_dir, log):
   return content_pools, style_pools, record
 
 
+def check_devices(config: config_lib.AdainConfig, parallel: DataParallel) -> None:
+  """UserError unless the batch's photo and feature crops split evenly over the devices."""
+  n = parallel.size
+  if config.batch % n:
+    config_lib.bad_setting(config, "batch", f"must be a multiple of the {n} devices")
+  if feature_batch(config) % n:
+    config_lib.bad_setting(config, "feature_share", f"gives {feature_batch(config)} feature "
+                                                    f"crops a batch, not a multiple of the "
+                                                    f"{n} devices")
+
+
 @run_lock.released_after
 def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir: str,
-          run_dir: str, progress: bool = True, log=print) -> TrainResult:
-  """Trains (or resumes) an AdaIN decoder in `run_dir`, on the shared loop (train.loop.fit).
+          run_dir: str, progress: bool = True, log=print, n_devices: Optional[int] = None,
+          parallel: str = "shard_map") -> TrainResult:
+  """Trains (or resumes) an AdaIN decoder in `run_dir`, on the shared loop (train.loop.fit),
+  data parallel over `n_devices` (default all; processes and `parallel` as nerf.train's).
 
   Writes run.json, checkpoints/ (orbax, params + Adam state + step), samples/step_N.png
   (content | style | output) every `sample_every` steps, and holdout.txt (the held-out
@@ -264,18 +250,17 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   the step; the last good checkpoint is kept.
   """
   config.validate()
+  devices = data_parallel(n_devices, parallel)
+  check_devices(config, devices)
   n_features = feature_batch(config)
   feature_run = check_feature_content(config, content_dirs)
   saved = os.path.join(run_dir, checkpoint_lib.CHECKPOINT_DIR)
   init_params = initial_decoder(config, resuming=os.path.isdir(saved) and bool(os.listdir(saved)))
   encoder_params = vgg.load_vgg_params()
   content_pools, style_pools, record = _read_inputs(config, content_dirs, style_dir, log)
-  resumed = runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
-  files.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
-                           "".join(p + "\n" for p in record["holdout"]).encode())
-  checkpoints = checkpoint_lib.Checkpoints(run_dir, keep=config.keep_checkpoints)
-  start = checkpoints.latest_step() if resumed else None
-  checkpoints.close()
+  distributed.check_same(record, "settings")
+  distributed.primary_first(_prepare, run_dir, record)
+  start = _latest_step(run_dir)
   if start is not None:
     log(f"resuming {run_dir} from step {start}")
     if start >= config.steps:
@@ -284,25 +269,42 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   feature_maps = feature_stats = None
   if n_features:
     log(f"feature maps of {config.content_features}: {n_features} of every {config.batch} crops")
-    feature_maps, feature_stats = prepare_feature_maps(run_dir, config, feature_run, progress)
+    maps = distributed.primary_first(prepare_feature_maps, run_dir, config, feature_run, progress)
+    feature_maps, feature_stats = maps or prepare_feature_maps(run_dir, config, feature_run)
   painted, sample_style = sample_painter(config, encoder_params, content_pools, style_pools,
                                          feature_maps, feature_stats)
-  os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
-  hooks = _Hooks(config, run_dir, encoder_params, painted, sample_style, start)
-  state = state_lib.create_state(init_params, make_optimizer(config))
-  state = state.replace(step=np.asarray(0, np.int64))  # the step as AdaIN checkpoints hold it.
+  hooks = _Hooks(config, run_dir, encoder_params, painted, sample_style, start, devices)
   batches = PrefetchedBatches(content_pools, style_pools, config, feature_maps)
   try:
-    summary = loop_lib.fit(state, hooks.step, batches, run_dir=run_dir, steps=config.steps,
+    summary = loop_lib.fit(new_state(init_params, config), hooks.step,
+                           lambda step: device_rows(batches(step), devices.size),
+                           run_dir=run_dir, steps=config.steps,
                            checkpoint_every=config.checkpoint_every,
                            keep_checkpoints=config.keep_checkpoints,
-                           parallel=data_parallel(1), desc="adain", progress=progress,
+                           parallel=devices, desc="adain", progress=progress,
                            on_step=hooks.on_step, history=False,
                            shown=("content", "style") + (("shift",) if config.shift_weight > 0
                                                          else ()))
   finally:
     batches.close()
   return _finish(run_dir, hooks, summary["seconds"], log)
+
+
+def _prepare(run_dir: str, record: Dict[str, Any]) -> None:
+  """The run folder (run.json, checked against an existing one), holdout.txt, samples/."""
+  runs_lib.prepare_run_dir(run_dir, KIND, record, lock=True)
+  files.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
+                           "".join(p + "\n" for p in record["holdout"]).encode())
+  os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
+
+
+def _latest_step(run_dir: str) -> Optional[int]:
+  """The step of the run's latest checkpoint, None without one."""
+  checkpoints = checkpoint_lib.Checkpoints(run_dir)
+  try:
+    return checkpoints.latest_step()
+  finally:
+    checkpoints.close()
 
 
 def _finish(run_dir: str, hooks: _Hooks, seconds: float, log) -> TrainResult:

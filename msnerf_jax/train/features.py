@@ -62,14 +62,13 @@ def frozen_mask(params):
 
 def init_params(config: FeatureConfig, nerf_params) -> Dict:
   """{"nerf": a copy of the NeRF run's params, "features": a fresh field and lift}."""
-  return merge(init_feature_params(config, config.scene_box, jax.random.PRNGKey(config.seed)),
+  return merge(init_feature_params(config, config.scene_box, jax.random.PRNGKey(config.optim.seed)),
                jax.tree_util.tree_map(jnp.array, nerf_params))
 
 
 def init_state(config: FeatureConfig, nerf_params) -> state_lib.TrainState:
-  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
-                                               config.lr_decay_steps),
-                      frozen=frozen_mask, b2=0.99, eps=1e-15)
+  tx = state_lib.adam(state_lib.exponential_lr(config.optim), frozen=frozen_mask, b2=0.99,
+                      eps=1e-15)
   return state_lib.create_state(init_params(config, nerf_params), tx)
 
 
@@ -283,14 +282,14 @@ def train(config: FeatureConfig, nerf_run_dir: str, decoder_dir: str, run_dir: s
                                    for v in scene.images[train_idx]]), jnp.float16)
   c2w = jnp.asarray(scene.c2w[train_idx])
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
-  base_key = jax.random.PRNGKey(config.seed)
+  base_key = jax.random.PRNGKey(config.optim.seed)
   shape = (scene.height, scene.width, scene.focal)
   summary = loop_lib.fit(
       init_state(config, nerf_run.params), compile_train_step(config, devices, decoder),
       lambda step: sample_batch(jax.random.fold_in(base_key, step), targets, c2w, K, config,
                                 scene.ndc, shape, scene.near, scene.far, coeffs, pixels),
-      run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
-      keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="features train",
+      run_dir=run_dir, **loop_lib.bookkeeping(config.optim),
+      parallel=devices, desc="features train",
       progress=progress, callback=callback,
       shown=("mse", "l1") + (("decode",) if config.decode_weight > 0 else ()))
   distributed.primary_first(write_rendered_stats, run_dir, scene, progress)

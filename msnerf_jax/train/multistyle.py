@@ -66,9 +66,8 @@ def frozen_mask(params):
 
 def init_state(config: MultistyleConfig, nerf_params) -> state_lib.TrainState:
   """Heads freshly initialised, trunks copied from the NeRF run; Adam only on the heads."""
-  params = init_multistyle_params(config, jax.random.PRNGKey(config.seed), nerf_params)
-  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
-                                               config.lr_decay_steps), frozen=frozen_mask)
+  params = init_multistyle_params(config, jax.random.PRNGKey(config.optim.seed), nerf_params)
+  tx = state_lib.adam(state_lib.exponential_lr(config.optim), frozen=frozen_mask)
   return state_lib.create_state(params, tx)
 
 
@@ -266,7 +265,7 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
   images = jnp.asarray(np.moveaxis(stylized.images[:, train_idx], 0, 3))
   c2w = jnp.asarray(scene.c2w[train_idx])
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
-  base_key = jax.random.PRNGKey(config.seed)
+  base_key = jax.random.PRNGKey(config.optim.seed)
   encoder = vgg.load_vgg_params() if config.style_weight > 0 else None
   step_fn = compile_train_step(config, stylized.vectors, scene.white_background, devices,
                                encoder)
@@ -274,6 +273,6 @@ def train(config: MultistyleConfig, nerf_run_dir: str, stylized: StylizedData, r
       init_state(config, nerf_run.params), step_fn,
       lambda step: sample_batch(jax.random.fold_in(base_key, step), images, c2w, K, config, scene,
                                 coeffs),
-      run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
-      keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="multistyle train",
+      run_dir=run_dir, **loop_lib.bookkeeping(config.optim),
+      parallel=devices, desc="multistyle train",
       progress=progress, callback=callback)

@@ -151,7 +151,7 @@ def refresh_grid(params, step, config: NerfConfig):
                                           jnp.zeros_like(points)[:, None], REFRESH_CHUNK)
     return jax.nn.relu(sigma[:, 0])
 
-  key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(config.seed), step), 7)
+  key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(config.optim.seed), step), 7)
   grid = params["occupancy"]
   refresh = lambda all_cells: lambda: occupancy.update_grid(grid, density, key, config,
                                                             all_cells)
@@ -196,8 +196,8 @@ def not_trained(params):
 
 
 def init_state(config: NerfConfig) -> state_lib.TrainState:
-  params = init_nerf_params(config, jax.random.PRNGKey(config.seed))
-  schedule = state_lib.exponential_lr(config.lr_init, config.lr_final, config.lr_decay_steps)
+  params = init_nerf_params(config, jax.random.PRNGKey(config.optim.seed))
+  schedule = state_lib.exponential_lr(config.optim)
   if sampler_of(config).occupancy:  # instant-NGP's Adam: beta2 0.99, eps 1e-15.
     return state_lib.create_state(params, state_lib.adam(schedule, not_trained, b2=0.99,
                                                          eps=1e-15))
@@ -245,7 +245,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   one style's stylized views (data.stylized.style_views), so that loading the run
   (runs.scene_of) reloads those views: the single-style NeRF baseline.
 
-  Checkpoints every config.checkpoint_every steps and at the end; re-running with the same
+  Checkpoints every config.optim.checkpoint_every steps and at the end; re-running with the same
   settings resumes from the latest complete checkpoint. A NaN/inf loss stops training with
   a UserError naming the step; the last good checkpoint stays the latest one.
   `callback(step, params)` runs after every checkpoint (benchmarks evaluate there); its
@@ -273,7 +273,7 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
   alphas = jnp.asarray(scene.alphas[train_idx]) if config.random_background else None
   c2w = jnp.asarray(scene.c2w[train_idx])
   K, coeffs = jax.tree_util.tree_map(jnp.asarray, scene.cameras_of(train_idx))
-  base_key = jax.random.PRNGKey(config.seed)
+  base_key = jax.random.PRNGKey(config.optim.seed)
   shape = (scene.height, scene.width, scene.focal)
 
   def batch_fn(step):  # per-step key: resuming replays the same batches.
@@ -283,7 +283,6 @@ def train(scene: Scene, config: NerfConfig, data_config: DataConfig, run_dir: st
 
   return loop_lib.fit(init_state(config), compile_train_step(config, scene.white_background,
                                                              devices),
-                      batch_fn, run_dir=run_dir, steps=config.steps,
-                      checkpoint_every=config.checkpoint_every,
-                      keep_checkpoints=config.keep_checkpoints, parallel=devices,
+                      batch_fn, run_dir=run_dir, **loop_lib.bookkeeping(config.optim),
+                      parallel=devices,
                       desc="nerf train", progress=progress, callback=callback)

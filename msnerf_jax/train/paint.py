@@ -55,8 +55,7 @@ def init_state(config: PaintConfig, nerf_params, n_styles: int, index: np.ndarra
   (the NeRF and the index get no optimizer state)."""
   params = {FROZEN: jax.tree_util.tree_map(jnp.array, nerf_params),
             TRAINED: init_painted_params(n_styles, index, count)}
-  tx = state_lib.adam(state_lib.exponential_lr(config.lr_init, config.lr_final,
-                                               config.lr_decay_steps), frozen=frozen_mask)
+  tx = state_lib.adam(state_lib.exponential_lr(config.optim), frozen=frozen_mask)
   return state_lib.create_state(params, tx)
 
 
@@ -195,7 +194,7 @@ def batch_of(step: int, config: PaintConfig, n_views: int, names: Sequence[str],
   `size` (H, W)) drawn from a key of the step and the style's name (a pure function of
   them, so a resumed run replays it, and a style's pairs do not depend on the other styles
   of the run); "init" marks the init fit's steps."""
-  key = jax.random.fold_in(jax.random.PRNGKey(config.seed), step)
+  key = jax.random.fold_in(jax.random.PRNGKey(config.optim.seed), step)
   v, n_styles = config.views_per_style, len(names)
   keys = [jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF) for name in names]
   views = [np.asarray(jax.random.randint(k, (v,), 0, n_views)) for k in keys]
@@ -263,8 +262,8 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
       init_state(config, nerf_run.params, len(names), index, count),
       compile_train_step(config, consts, devices, scene.white_background),
       lambda i: batch_of(i, config, n_views, names, (scene.height, scene.width)),
-      run_dir=run_dir, steps=config.steps, checkpoint_every=config.checkpoint_every,
-      keep_checkpoints=config.keep_checkpoints, parallel=devices, desc="paint train",
+      run_dir=run_dir, **loop_lib.bookkeeping(config.optim),
+      parallel=devices, desc="paint train",
       progress=progress, callback=callback, shown=("mse", config.style_loss, "content"))
   if distributed.is_primary():
     runs_lib.write_summary(run_dir, {k: summary[k] for k in ("steps", "resumed_from",

@@ -197,7 +197,7 @@ def _append_style(run_dir, run, name, style_path, picture, colours) -> int:
   them) in a new checkpoint, its picture, then run.json (the style exists once run.json
   names it; a checkpoint written before an interruption holds one unnamed extra table,
   which nothing reads)."""
-  checkpoints = Checkpoints(run_dir, keep=run.config.keep_checkpoints)
+  checkpoints = Checkpoints(run_dir, keep=run.config.optim.keep_checkpoints)
   try:
     tree = checkpoints.restore()
     old = tree["params"][paint.TRAINED]["colours"]

@@ -7,13 +7,16 @@ import jax
 import optax
 from flax.training import train_state
 
+from msnerf_jax.core.config import OptimConfig
+
 TrainState = train_state.TrainState
 
 
-def exponential_lr(lr_init: float, lr_final: float, decay_steps: int) -> optax.Schedule:
-  """lr_init * (lr_final / lr_init) ** (step / decay_steps) (the reference decay)."""
-  return optax.exponential_decay(lr_init, transition_steps=decay_steps,
-                                 decay_rate=lr_final / lr_init)
+def exponential_lr(optim: OptimConfig) -> optax.Schedule:
+  """lr_init * (lr_final / lr_init) ** (step / lr_decay_steps) (the reference decay) of a
+  config's optimisation block."""
+  return optax.exponential_decay(optim.lr_init, transition_steps=optim.lr_decay_steps,
+                                 decay_rate=optim.lr_final / optim.lr_init)
 
 
 def adam(schedule, frozen: Optional[Callable[[Any], Any]] = None,

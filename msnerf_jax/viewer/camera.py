@@ -8,12 +8,13 @@ whatever the window), shaped to the viewport's aspect ratio.
 """
 
 import math
-from typing import Tuple
+from typing import Any, Dict, Tuple
 
 import numpy as np
 import viser.transforms as tf
 
 from msnerf_jax.nerf import cameras as cameras_lib
+from msnerf_jax.data.camera_path import camera_path_dict
 from msnerf_jax.data.scene import Scene
 
 # OpenCV camera axes = OpenGL's with y and z flipped.
@@ -80,3 +81,12 @@ def nearest_view(scene: Scene, position, wxyz) -> int:
                             / np.linalg.norm(c2w[:, :3, 2], axis=1), -1.0, 1.0))
   scale = np.median(np.linalg.norm(c2w[:, :3, 3] - c2w[:, :3, 3].mean(0), axis=1)) + 1e-6
   return int(views[np.argmin(distance + scale * angle)])
+
+
+def keyframes_dict(cameras) -> Dict[str, Any]:
+  """camera_path.json of cameras (cameras.Camera, each with its own field of view), sized as
+  the last one."""
+  last = cameras[-1]
+  # The format keeps a vertical field of view: focal lengths in the last camera's pixels.
+  Ks = np.stack([c.K * (last.height / c.height) for c in cameras])
+  return camera_path_dict([c.c2w for c in cameras], Ks, last.height, last.width)

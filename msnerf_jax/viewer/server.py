@@ -6,11 +6,9 @@ are only written into the output folder, under names the server chooses.
 """
 
 import dataclasses
-import ipaddress
 import json
 import math
 import os
-import socket
 import threading
 import time
 from typing import Any, Callable, Dict, Optional, Sequence
@@ -18,42 +16,19 @@ from typing import Any, Callable, Dict, Optional, Sequence
 import numpy as np
 import viser
 
-from msnerf_jax.data.camera_path import camera_path_dict, read_camera_path
+from msnerf_jax.data.camera_path import read_camera_path
 from msnerf_jax.data.stylized import ORIGINAL
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.kinds.registry import KINDS, get_kind
 from msnerf_jax.core.files import atomic_write_bytes
 from msnerf_jax.viewer import camera as camera_lib
+from msnerf_jax.viewer.network import check_port
 from msnerf_jax.viewer.frames import Frames, Request, StyleChoice, View
 from msnerf_jax.viewer.scheduler import Scheduler
 
 KEYFRAMES = "camera_path.json"
 UPLOAD_PREFIX = "upload: "
 MAX_UPLOADS_PER_CLIENT = 8
-
-
-def check_port(host: str, port: int) -> None:
-  """UserError unless host:port can be bound now (port 0: any free port)."""
-  try:
-    infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-  except socket.gaierror as e:
-    raise UserError(f"--host {host}: cannot resolve ({e.strerror})") from None
-  family, _, _, _, address = infos[0]
-  with socket.socket(family, socket.SOCK_STREAM) as probe:
-    try:
-      probe.bind(address)
-    except OSError as e:
-      raise UserError(f"{host}:{port}: cannot listen there ({e.strerror}; is another "
-                      "server using the port? choose one with --port)") from None
-
-
-def is_loopback(host: str) -> bool:
-  if host == "localhost":
-    return True
-  try:
-    return ipaddress.ip_address(host).is_loopback
-  except ValueError:
-    return False
 
 
 @dataclasses.dataclass
@@ -302,7 +277,7 @@ class ViewerServer:
         os.makedirs(self.out_dir, exist_ok=True)
         cameras = read_camera_path(path)[0] if os.path.exists(path) else []
         cameras.append(camera)
-        atomic_write_bytes(path, json.dumps(keyframes_dict(cameras), indent=1).encode())
+        atomic_write_bytes(path, json.dumps(camera_lib.keyframes_dict(cameras), indent=1).encode())
     except (UserError, OSError) as e:
       self._notify(client_id, "Keyframe not saved", str(e), error=True)
       return
@@ -326,15 +301,6 @@ def view_of_camera(camera, max_coordinate: float = 1e6) -> Optional[View]:
       or np.abs(position).max() > max_coordinate or not 1e-3 < np.linalg.norm(wxyz) < 1e3):
     return None
   return View(wxyz, position, fov, aspect)
-
-
-def keyframes_dict(cameras) -> Dict[str, Any]:
-  """camera_path.json of cameras (cameras.Camera, each with its own field of view), sized as
-  the last one."""
-  last = cameras[-1]
-  # The format keeps a vertical field of view: focal lengths in the last camera's pixels.
-  Ks = np.stack([c.K * (last.height / c.height) for c in cameras])
-  return camera_path_dict([c.c2w for c in cameras], Ks, last.height, last.width)
 
 
 def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.0.1",

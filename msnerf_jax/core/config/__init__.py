@@ -3,8 +3,10 @@ refused), the NeRF presets, and their JSON round trip: `msnerf_jax.core.config.N
 and so on, whichever module of this package defines it."""
 
 from msnerf_jax.core.config.base import (NAMED_FIRST, bad_setting, check_at_least,
-                                         check_hash_settings, check_positive, diff, from_dict,
-                                         help_of, override, setting, to_dict)
+                                         check_hash_settings, check_positive, diff, flat_fields,
+                                         from_dict, help_of, nested_class, override, setting,
+                                         setting_of, to_dict)
+from msnerf_jax.core.config.optim import OptimConfig, optimisation
 from msnerf_jax.core.config.nerf import (DEFAULT_PRESET, PRESETS, SAMPLERS, TRUNKS, DataConfig,
                                          NerfConfig, nerf_preset)
 from msnerf_jax.core.config.paint import PAINT_LOSSES, PaintConfig
@@ -13,7 +15,8 @@ from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_
                                           FeatureConfig, MultistyleConfig)
 
 __all__ = ["NAMED_FIRST", "bad_setting", "check_at_least", "check_hash_settings",
-           "check_positive", "diff", "from_dict", "help_of", "override", "setting", "to_dict",
+           "check_positive", "diff", "flat_fields", "from_dict", "help_of", "nested_class",
+           "override", "setting", "setting_of", "to_dict", "OptimConfig", "optimisation",
            "DEFAULT_PRESET", "PRESETS",
            "SAMPLERS", "TRUNKS", "DataConfig", "NerfConfig", "nerf_preset", "DECODE_TARGETS",
            "FEATURE_LOSSES", "SHIFT_MIN_SIZE", "SHIFT_SOURCES", "UPSAMPLE_MODES", "AdainConfig",

@@ -5,7 +5,8 @@ import functools
 from typing import Any
 
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_hash_settings,
-                                         check_positive, override, setting)
+                                         override, setting)
+from msnerf_jax.core.config.optim import OptimConfig, optimisation
 from msnerf_jax.core.errors import UserError
 
 
@@ -78,12 +79,8 @@ class NerfConfig:
                                       "training")
   # Optimisation.
   batch_rays: int = setting(1024, "rays per step")
-  steps: int = setting(200_000, "training steps")
-  lr_init: float = setting(5e-4, "initial learning rate")
-  lr_final: float = setting(5e-5, "learning rate reached at --lr-decay-steps (exponential "
-                                  "decay)")
-  lr_decay_steps: int = setting(250_000, "steps over which the learning rate decays to "
-                                         "--lr-final")
+  optim: OptimConfig = optimisation(steps=200_000, lr_init=5e-4, lr_final=5e-5,
+                                    lr_decay_steps=250_000, checkpoint_every=5000)
   precrop_steps: int = setting(500, "Blender: steps that sample only the central crop of each "
                                     "view (avoids an empty scene)")
   precrop_frac: float = setting(0.5, "side of that central crop, as a fraction of the view")
@@ -101,9 +98,6 @@ class NerfConfig:
   distortion_weight: float = setting(0.0, "weight of the mip-NeRF 360 distortion loss against "
                                           "semi-transparent floaters (0 = off)")
   # Bookkeeping.
-  seed: int = setting(0, "random seed")
-  checkpoint_every: int = setting(5000, "steps between checkpoints")
-  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
   render_chunk: int = setting(4096, "rays per jitted rendering call (bounds memory whatever the "
                                     "image size)")
   mlp_chunk: int = setting(8192, "samples per MLP call inside a step (cache-sized matmuls; 0 = "
@@ -112,10 +106,9 @@ class NerfConfig:
   def validate(self) -> "NerfConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
     that cannot work: the one place a NerfConfig's values are refused."""
-    check_at_least(self, ("steps", "net_depth", "net_width", "n_coarse", "n_fine", "batch_rays",
-                          "checkpoint_every", "keep_checkpoints", "lr_decay_steps",
+    self.optim.validate()
+    check_at_least(self, ("net_depth", "net_width", "n_coarse", "n_fine", "batch_rays",
                           "render_chunk"))
-    check_positive(self, ("lr_init", "lr_final"))
     check_at_least(self, ("pos_freqs", "dir_freqs", "precrop_steps", "mlp_chunk"), 0)
     if not 0.0 < self.precrop_frac <= 1.0:
       bad_setting(self, "precrop_frac", "must be in (0, 1]")
@@ -147,7 +140,8 @@ class NerfConfig:
 
 def _paper(llff: bool) -> NerfConfig:
   """The reference code's defaults."""
-  return NerfConfig(
+  return override(
+      NerfConfig(),
       n_fine=64 if llff else 128,
       raw_noise_std=1.0 if llff else 0.0,
       precrop_steps=0 if llff else 500,
@@ -160,7 +154,8 @@ def _fast(llff: bool) -> NerfConfig:
   # Hash grid (16 levels x 2 features, 2^16 entries, 16 -> 256) and occupancy grid (64^3,
   # 128 steps across the box, a budget of 24 samples a ray): about 0.14 s per 1024-ray
   # step on 2 cores (lego 100x100), instant-NGP's learning rate and Adam.
-  return NerfConfig(
+  return override(
+      NerfConfig(),
       trunk="hash",
       sampler="grid",
       net_width=64,
@@ -190,7 +185,8 @@ def _fast(llff: bool) -> NerfConfig:
 def _cpu(llff: bool) -> NerfConfig:
   """A small MLP for a 2-core laptop."""
   # 4x64 MLP, 16 + 32 samples: about 0.3 s per 1024-ray step on 2 cores (lego 100x100).
-  return NerfConfig(
+  return override(
+      NerfConfig(),
       net_depth=4,
       net_width=64,
       skip_layer=2,

@@ -4,8 +4,9 @@ optimised with a style loss on rendered views (`msnerf paint train`)."""
 import dataclasses
 
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_non_negative,
-                                         check_positive, setting)
+                                         setting)
 from msnerf_jax.core.config.nerf import NerfConfig
+from msnerf_jax.core.config.optim import OptimConfig, optimisation
 
 PAINT_LOSSES = ("nnfm", "adain")  # PaintConfig.style_loss.
 
@@ -35,8 +36,8 @@ class PaintConfig:
                                         "covariance first (the init fit's and the content "
                                         "term's target)")
   style_size: int = setting(256, "style images are cover-cropped to this square first")
-  init_steps: int = setting(100, "first steps: MSE to the colour-transferred photos")
-  steps: int = setting(1000, "training steps (the init steps included)")
+  init_steps: int = setting(100, "first steps (of --steps): MSE to the colour-transferred "
+                                 "photos")
   views_per_style: int = setting(1, "training views rendered in each style per step")
   crop: int = setting(0, "the style loss sees a random crop of this many pixels a side of "
                          "each rendered view (0 = the whole view; for views too large for "
@@ -44,12 +45,9 @@ class PaintConfig:
   cache_threshold: float = setting(1e-3, "samples whose weight is at most this are left out "
                                          "of the cached sample lists")
   top_k: int = setting(16, "hierarchical NeRFs: the heaviest fine samples of each ray kept")
-  lr_init: float = setting(0.05, "initial learning rate (decays exponentially to --lr-final)")
-  lr_final: float = setting(0.005, "learning rate reached at --lr-decay-steps")
-  lr_decay_steps: int = setting(1000, "steps over which the learning rate decays to --lr-final")
-  seed: int = setting(0, "random seed")
-  checkpoint_every: int = setting(250, "steps between checkpoints")
-  keep_checkpoints: int = setting(2, "checkpoints kept in RUN/checkpoints")
+  optim: OptimConfig = optimisation(steps=1000, lr_init=0.05, lr_final=0.005,
+                                    lr_decay_steps=1000, checkpoint_every=250,
+                                    keep_checkpoints=2)
 
   def validate(self) -> "PaintConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
@@ -62,12 +60,10 @@ class PaintConfig:
     check_non_negative(self, ("style_weight", "content_weight", "tv_weight"))
     check_at_least(self, ("style_size",), 16)
     check_at_least(self, ("init_steps",), 0)
-    check_at_least(self, ("steps", "views_per_style", "top_k", "checkpoint_every",
-                          "keep_checkpoints", "lr_decay_steps"))
+    check_at_least(self, ("views_per_style", "top_k"))
     if self.crop and self.crop < 32:
       bad_setting(self, "crop", "must be 0 (whole views) or at least 32 (VGG's relu3 needs 8x8)")
     if not 0.0 <= self.cache_threshold < 1.0:
       bad_setting(self, "cache_threshold", "must be in [0, 1)")
-    check_positive(self, ("lr_init",), "lr")
-    check_positive(self, ("lr_final",))
+    self.optim.validate("lr")
     return self

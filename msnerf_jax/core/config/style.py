@@ -5,6 +5,7 @@ import dataclasses
 from msnerf_jax.core.config.base import (bad_setting, check_at_least, check_hash_settings,
                                          check_non_negative, check_positive, setting)
 from msnerf_jax.core.config.nerf import NerfConfig
+from msnerf_jax.core.config.optim import OptimConfig, optimisation
 
 
 FEATURE_LOSSES = ("mse", "l1")  # FeatureConfig.loss.
@@ -54,14 +55,8 @@ class FeatureConfig:
                                         "relu4_1 cells, per-frame AdaIN at alpha 0)")
   decode_patches: int = setting(2, "decodability loss: patches per step")
   decode_cells: int = setting(6, "decodability loss: a patch's side in relu4_1 cells (>= 3)")
-  steps: int = setting(4000, "training steps")
-  lr_init: float = setting(2e-2, "initial learning rate (decays exponentially to --lr-final at "
-                                 "--lr-decay-steps)")
-  lr_final: float = setting(1e-3, "learning rate reached at --lr-decay-steps")
-  lr_decay_steps: int = setting(4000, "steps over which the learning rate decays to --lr-final")
-  seed: int = setting(0, "random seed")
-  checkpoint_every: int = setting(500, "steps between checkpoints")
-  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
+  optim: OptimConfig = optimisation(steps=4000, lr_init=2e-2, lr_final=1e-3,
+                                    lr_decay_steps=4000, checkpoint_every=500)
 
   def validate(self) -> "FeatureConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
@@ -70,10 +65,8 @@ class FeatureConfig:
     if isinstance(scale, bool) or not isinstance(scale, int) or scale < 1:
       bad_setting(self, "stylize_scale", "must be a whole number >= 1")
     check_at_least(self, ("width",), 0)
-    check_at_least(self, ("dim", "rays_per_cell", "batch_cells", "top_k", "steps",
-                          "lr_decay_steps", "checkpoint_every", "keep_checkpoints"))
-    check_positive(self, ("lr_init",), "lr")
-    check_positive(self, ("lr_final",))
+    check_at_least(self, ("dim", "rays_per_cell", "batch_cells", "top_k"))
+    self.optim.validate("lr")
     if self.scene_box < 0:
       bad_setting(self, "scene_box", "must be >= 0 (0 = the NeRF's)")
     if self.loss not in FEATURE_LOSSES:
@@ -200,22 +193,14 @@ class MultistyleConfig:
   style_patch: int = setting(32, "side of each patch of the style loss, in pixels")
   style_patches: int = setting(1, "patches per step of the style loss (split across devices "
                                   "like the pixels)")
-  steps: int = setting(3000, "training steps")
-  lr_init: float = setting(1e-3, "initial learning rate")
-  lr_final: float = setting(1e-4, "learning rate reached at --lr-decay-steps (exponential "
-                                  "decay)")
-  lr_decay_steps: int = setting(5000, "steps over which the learning rate decays to --lr-final")
-  seed: int = setting(0, "random seed")
-  checkpoint_every: int = setting(500, "steps between checkpoints")
-  keep_checkpoints: int = setting(3, "checkpoints kept in RUN/checkpoints")
+  optim: OptimConfig = optimisation(steps=3000, lr_init=1e-3, lr_final=1e-4,
+                                    lr_decay_steps=5000, checkpoint_every=500)
 
   def validate(self) -> "MultistyleConfig":
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
     that cannot work (the patch loss against the scene's size is the trainer's check)."""
-    check_at_least(self, ("steps", "batch_rays", "style_dim", "style_hidden", "style_hidden2",
-                          "checkpoint_every", "keep_checkpoints", "lr_decay_steps"))
-    check_positive(self, ("lr_init",), "lr")
-    check_positive(self, ("lr_final",))
+    self.optim.validate("lr")
+    check_at_least(self, ("batch_rays", "style_dim", "style_hidden", "style_hidden2"))
     check_at_least(self, ("rgb_extra_layers", "density_extra_layers"), 0)
     check_non_negative(self, ("style_weight",))
     if self.style_weight > 0:
