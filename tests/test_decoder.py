@@ -416,6 +416,7 @@ assert os.path.exists(os.path.join(run, "samples", "step_0000002.png"))
 """
 
 
+@pytest.mark.slow  # 35 s; the NeRF trainer's two-device test stays in the default suite
 def test_two_devices_train_the_decoder_as_one(tmp_path, folders):
   import subprocess  # pylint: disable=g-import-not-at-top
   import sys  # pylint: disable=g-import-not-at-top
