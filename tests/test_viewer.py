@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -387,6 +388,36 @@ def test_nerf_run_is_viewed_without_style_controls(world):
                                   frames.config, frames.scene.white_background,
                                   frames.chunks["full"])
     _assert_same(frame, to_uint8(out["rgb"]))
+  finally:
+    probe.close()
+    viewer.stop()
+
+
+def test_full_frames_take_the_windows_shape_up_to_full_side(world):
+  """`--full-side N`: a resting camera's frame has up to N x N pixels, shaped to the window
+  and never more than the window's own; it is render_image of that camera. Low frames keep
+  their budget."""
+  viewer = server_lib.open_viewer(world["nerf"], port=0, log=lambda _: None, full_side=40)
+  probe = probe_lib.Probe(viewer.url)
+  try:
+    frames = viewer.frames
+    assert frames.pixels["full"] == 1600 and frames.pixels["low"] == 16 * 16 // 16
+    view = frames.start_request().view
+    for width, height, shape in [(640, 480, camera_lib.frame_size(4 / 3, 1600)),
+                                 (20, 15, (15, 20))]:  # a window smaller than 40 x 40
+      n = probe.frame_count()
+      probe.camera(view.wxyz, view.position, view.fov, width, height)
+      probe.wait_for(lambda: "frame" in probe.components, 30, "controls")
+      frame = probe.frame_of_size(*shape, n)
+      sized = server_lib.view_of_camera(SimpleNamespace(
+          wxyz=view.wxyz, position=view.position, fov=view.fov, image_width=width,
+          image_height=height))
+      camera = frames.camera(sized, "full")
+      assert (camera.height, camera.width) == shape
+      out = render_lib.render_image(frames.field, frames.params,
+                                    frames.scene.camera_rays(camera), frames.config,
+                                    frames.scene.white_background, frames.chunks["full"])
+      _assert_same(frame, to_uint8(out["rgb"]))
   finally:
     probe.close()
     viewer.stop()

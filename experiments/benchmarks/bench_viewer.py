@@ -4,7 +4,7 @@ server and protocol (msnerf_jax.viewer.probe as the browser), against the same f
 rendered directly in the same run.
 
 Usage:
-  python experiments/benchmarks/bench_viewer.py --run RUN [--moves 20] [--exact]
+  python experiments/benchmarks/bench_viewer.py --run RUN [--moves 20] [--exact] [--full-side N]
 
 RUN: a NeRF or multi-style run folder (the issue's target: a lego 100x100 multi-style run).
 Targets (issue 18, 2-core CPU): low frame < 0.3 s after a move, full 100x100 frame < 2 s.
@@ -35,11 +35,14 @@ def main():
   parser.add_argument("--height", type=int, default=800)
   parser.add_argument("--exact", action="store_true",
                       help="draw with the exact renderer, not a fast run's baked scene")
+  parser.add_argument("--full-side", type=int, default=None,
+                      help="full frames of up to N x N pixels at the viewport's shape "
+                           "(`msnerf view --full-side`; default: the training images' size)")
   args = parser.parse_args()
   print(f"# {platform.machine()} {os.cpu_count()} cores, jax {jax.__version__}, "
         f"{jax.devices()[0].platform}; run {args.run}")
   viewer = server_lib.open_viewer(args.run, "/tmp/msnerf_bench_viewer", port=0, log=print,
-                                  exact=args.exact)
+                                  exact=args.exact, full_side=args.full_side)
   frames = viewer.frames
   scene = frames.scene
   poses = scene.render_poses

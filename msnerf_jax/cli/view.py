@@ -4,6 +4,8 @@ from msnerf_jax.cli.common import add_grids_argument
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.train.stop import stop_requests
 
+MAX_FULL_SIDE = 4096
+
 
 def register(commands, formatter):
   p = commands.add_parser(
@@ -36,12 +38,19 @@ def register(commands, formatter):
                  help="draw with the exact renderer; by default a NeRF or multi-style run on "
                       "the occupancy grid (the fast preset) is drawn from its baked scene "
                       "(RUN/baked.npz, baked on first use)")
+  p.add_argument("--full-side", type=int, default=None, metavar="N",
+                 help="full frames (once the camera rests) of up to N x N pixels, shaped to "
+                      "the window and never more than its own, e.g. 800 (16..4096; default: "
+                      "the training images' size). Frames in progress are dropped when the "
+                      "camera moves, so a large N costs waiting, not steering")
   p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args):
   if not 0 <= args.port <= 65535:
     raise UserError(f"--port {args.port}: must be in 0..65535")
+  if args.full_side is not None and not 16 <= args.full_side <= MAX_FULL_SIDE:
+    raise UserError(f"--full-side {args.full_side}: must be in 16..{MAX_FULL_SIDE}")
   try:
     from msnerf_jax.viewer import network, server  # pylint: disable=g-import-not-at-top
   except ImportError as e:
@@ -50,7 +59,7 @@ def cmd_view(args):
   print(f"msnerf view: loading {args.run}")
   viewer = server.open_viewer(args.run, args.out, args.host, args.port,
                               style_paths=args.styles, decoder_dir=args.decoder,
-                              grids=args.grids, exact=args.exact)
+                              grids=args.grids, exact=args.exact, full_side=args.full_side)
   where = ("this machine only" if network.is_loopback(args.host)
            else "reachable from the network: anyone who can connect sees and uses it")
   print(f"msnerf view: serving {args.run} at {viewer.url} ({where}); saved files go to "

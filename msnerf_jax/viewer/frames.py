@@ -53,12 +53,13 @@ class StyleChoice:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class View:
-  """A browser camera: viser pose (OpenCV wxyz [4], position [3]), vertical fov (radians) and
-  the viewport's aspect ratio (width / height)."""
+  """A browser camera: viser pose (OpenCV wxyz [4], position [3]), vertical fov (radians),
+  the viewport's aspect ratio (width / height) and its pixels (0: not known)."""
   wxyz: Tuple[float, ...]
   position: Tuple[float, ...]
   fov: float
   aspect: float
+  pixels: int = 0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -79,12 +80,15 @@ class Frames:
 
   def __init__(self, run: Run, scene: Scene, style_paths: Sequence[str] = (),
                decoder_dir: Optional[str] = None, grids: Optional[int] = None,
-               exact: bool = False, report: Callable[[str], Any] = print):
+               exact: bool = False, report: Callable[[str], Any] = print,
+               full_side: Optional[int] = None):
     """style_paths: style images added to the style table (any run with styles); decoder_dir:
     the AdaIN run that paints a feature run (default: the one it was trained with); grids:
     the cell grids its full frames are painted on (views.render_feature_styles'; low frames,
     drawn while the camera moves, use one). A NeRF or multi-style run on the occupancy grid
-    is drawn from its baked scene (kinds.baked, baked on first use), unless `exact`."""
+    is drawn from its baked scene (kinds.baked, baked on first use), unless `exact`.
+    full_side: full frames get up to full_side^2 pixels, shaped to the window and never more
+    than its own (default: as many as the training images; low frames keep theirs)."""
     self.run, self.scene = run, scene
     self._painted_size = None  # what a style picture is cover-cropped to (feature runs).
     self._paint = None
@@ -121,11 +125,12 @@ class Frames:
     self.styles = {**given, **{k: v for k, v in self.styles.items() if k not in given}}
     self._encoder = cache.get("encoder")
     self.params = jax.device_put(run.params)
-    full = scene.height * scene.width
+    trained = scene.height * scene.width
+    full = trained if full_side is None else full_side ** 2
     # A baked run's low frames have 1/4 of the pixels (half of each side): it draws them in
     # about the time the exact renderer draws 1/16.
     divisor = BAKED_LOW_LEVEL_DIVISOR if self.baked is not None else LOW_LEVEL_DIVISOR
-    self.pixels = {"low": max(1, full // divisor), "full": full}
+    self.pixels = {"low": max(1, trained // divisor), "full": full}
     # Frame sizes round to the aspect ratio: a frame has at most pixels + 2 sqrt(pixels) + 1.
     slack = lambda n: n + 2 * int(np.ceil(np.sqrt(n))) + 1
     # One band for a low frame; a full frame in equal bands of at most render_chunk rays
@@ -167,8 +172,12 @@ class Frames:
       return style_vector_of(self._encoder, image, self._painted_size)
 
   def camera(self, view: View, level: str):
-    """The library camera (cameras.Camera) of a view at a level's pixel budget."""
-    height, width = camera_lib.frame_size(view.aspect, self.pixels[level])
+    """The library camera (cameras.Camera) of a view at a level's pixel budget (a full frame:
+    at most the window's pixels)."""
+    pixels = self.pixels[level]
+    if level == "full" and view.pixels:
+      pixels = max(self.pixels["low"], min(pixels, view.pixels))
+    height, width = camera_lib.frame_size(view.aspect, pixels)
     return camera_lib.to_camera(view.wxyz, view.position, view.fov, height, width)
 
   def render(self, request: Request, level: str,

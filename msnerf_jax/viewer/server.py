@@ -292,26 +292,29 @@ def view_of_camera(camera, max_coordinate: float = 1e6) -> Optional[View]:
   try:
     wxyz = tuple(float(x) for x in np.asarray(camera.wxyz, np.float64).reshape(4))
     position = tuple(float(x) for x in np.asarray(camera.position, np.float64).reshape(3))
-    fov, height = float(camera.fov), float(camera.image_height)
-    aspect = float(camera.image_width) / height if height > 0 else 1.0
+    fov, height, width = float(camera.fov), float(camera.image_height), float(camera.image_width)
+    aspect = width / height if height > 0 else 1.0
   except (TypeError, ValueError, OverflowError):
     return None
   numbers = np.asarray([*wxyz, *position, fov, aspect])
   if (not np.all(np.isfinite(numbers)) or not 1e-3 < fov < math.pi - 1e-3
       or np.abs(position).max() > max_coordinate or not 1e-3 < np.linalg.norm(wxyz) < 1e3):
     return None
-  return View(wxyz, position, fov, aspect)
+  pixels = width * height  # the window's (0: unknown, a full frame keeps its budget)
+  return View(wxyz, position, fov, aspect, int(pixels) if 0 < pixels < 2 ** 31 else 0)
 
 
 def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.0.1",
                 port: int = 8080, log: Callable[[str], Any] = print,
                 style_paths: Sequence[str] = (), decoder_dir: Optional[str] = None,
-                grids: Optional[int] = None, exact: bool = False) -> ViewerServer:
+                grids: Optional[int] = None, exact: bool = False,
+                full_side: Optional[int] = None) -> ViewerServer:
   """Loads a run folder (a NeRF, multi-style or feature run), compiles its frames and starts
   serving it; `out_dir` (default RUN/viewer) receives saved views and keyframes. style_paths:
   style images added to the style menus; decoder_dir, grids: the AdaIN run that paints a
   feature run (default: its own) and on how many cell grids (Frames'); exact: draw with the
-  exact renderer, not the run's baked scene.
+  exact renderer, not the run's baked scene; full_side: full frames of up to full_side^2
+  pixels at the window's shape (Frames'; default: the training images' size).
 
   Raises:
     UserError for an unreadable run, a run without a scene, a bad style image or decoder, or
@@ -327,7 +330,7 @@ def open_viewer(run_dir: str, out_dir: Optional[str] = None, host: str = "127.0.
   check_port(host, port)
   run = runs.load_run(run_dir, kind)
   scene = runs.scene_of(run)[0]
-  frames = Frames(run, scene, style_paths, decoder_dir, grids, exact, log)
+  frames = Frames(run, scene, style_paths, decoder_dir, grids, exact, log, full_side)
   log(f"{run_dir}: {kind} run at step {run.step}, {scene.width}x{scene.height} frames"
       + (f", styles: {', '.join(frames.styles)}" if frames.has_styles else ""))
   frames.warm_up(log)
