@@ -122,3 +122,24 @@ def test_config_file_keeps_what_the_command_line_does_not_set(kind, argv, field,
   config = start_config(args, kind, built, {"lr_init": "lr", "lr_final": "lr"})
   assert [config_lib.setting_of(config, name) for name in ("steps", "seed", field)] == [
       7, 5, value]
+
+
+@pytest.mark.parametrize("argv, cls, ratio, expected", [
+    (["multistyle", "train", "--nerf", "N", "--stylized", "S", "--lr", "0.002"],
+     config_lib.MultistyleConfig, 0.1, {"lr_init": 0.002, "lr_final": 0.0002}),
+    (["multistyle", "train", "--nerf", "N", "--stylized", "S", "--lr", "0.002", "--lr-final",
+      "0.001", "--steps", "9"], config_lib.MultistyleConfig, 0.1,
+     {"lr_init": 0.002, "lr_final": 0.001, "steps": 9}),
+    (["features", "train", "--nerf", "N", "--decoder", "D", "--lr", "0.5", "--seed", "4"],
+     config_lib.FeatureConfig, 0.0, {"lr_init": 0.5, "lr_final": 1e-3, "seed": 4}),
+    (["paint", "train", "--nerf", "N", "--styles", "a.jpg", "--lr", "0.3",
+      "--keep-checkpoints", "5"], config_lib.PaintConfig, 0.0,
+     {"lr_init": 0.3, "lr_final": 0.005, "keep_checkpoints": 5}),
+])
+def test_trainer_options_set_the_optimisation_block(argv, cls, ratio, expected, tmp_path):
+  """--lr and the other optimisation options of the trainers on a NeRF run land in the
+  config's `optim` block; the rest of the block keeps the config's own defaults."""
+  from msnerf_jax.cli.config_args import trainer_config  # pylint: disable=g-import-not-at-top
+  args = cli.build_parser().parse_args(argv + ["--out", str(tmp_path / "run")])
+  config, shows = trainer_config(args, cls, "multistyle", ratio)
+  assert shows and config == override(cls(), **expected)

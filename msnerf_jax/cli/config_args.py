@@ -118,7 +118,7 @@ def trainer_config(args: argparse.Namespace, cls: Type, kind: str, lr_final_rati
   if lr and lr_final_ratio:
     lr["lr_final"] = args.lr * lr_final_ratio
     aliases["lr_final"] = "lr_final" if args.lr_final else "lr"
-  built = config_lib.override(cls(**lr), **config_overrides(args, cls))
+  built = config_lib.override(cls(), **{**lr, **config_overrides(args, cls)})
   return start_config(args, kind, built, aliases), shows
 
 
