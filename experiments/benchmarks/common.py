@@ -52,8 +52,9 @@ def synthetic_rays(n, key):
 def parse_overrides(items, preset):
   """NerfConfig overrides {key: value} for `preset` from `--set [PRESET:]key=value ...`
   (items without a PRESET: prefix apply to every preset)."""
-  from msnerf_jax.core.config import NerfConfig  # pylint: disable=g-import-not-at-top
-  fields = NerfConfig.__dataclass_fields__
+  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.core.config import NerfConfig, flat_fields
+  fields = {f.name: f for _, f in flat_fields(NerfConfig)}  # the optimisation block's too
   out = {}
   for item in items:
     name, setting = item.split(":", 1) if ":" in item else (preset, item)
