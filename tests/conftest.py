@@ -3,6 +3,9 @@ compile settings for the whole run."""
 
 import json
 import os
+import shutil
+import tempfile
+import time
 
 import numpy as np
 import pytest
@@ -19,6 +22,18 @@ DATA = os.environ.get("MSNERF_DATA", os.path.join(REPO, "..", "shared", "data"))
 # (those that add devices append to it), so what a test compares was compiled the same way.
 os.environ["XLA_FLAGS"] = " ".join(
     [os.environ.get("XLA_FLAGS", ""), "--xla_backend_optimization_level=0"]).strip()
+# And many tests compile the same programs (the tiny NeRF, heads and decoder steps of several
+# files, the command line's renders): one persistent compilation cache for the run, shared
+# by both workers and every process they start, in a folder of its own (each run compiles
+# what it tests; folders of runs over an hour old are removed).
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+  _CACHES = os.path.join(tempfile.gettempdir(), "msnerf-test-jax-cache")
+  os.makedirs(_CACHES, exist_ok=True)
+  for _old in os.listdir(_CACHES):
+    if time.time() - os.path.getmtime(os.path.join(_CACHES, _old)) > 3600:
+      shutil.rmtree(os.path.join(_CACHES, _old), ignore_errors=True)
+  os.environ["JAX_COMPILATION_CACHE_DIR"] = os.path.join(_CACHES, f"run-{os.getpid()}")
+  os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.3"
 
 
 def data_path(*parts):

@@ -125,20 +125,24 @@ class Frames:
     self.styles = {**given, **{k: v for k, v in self.styles.items() if k not in given}}
     self._encoder = cache.get("encoder")
     self.params = jax.device_put(run.params)
-    trained = scene.height * scene.width
+    self.pixels, self.chunks = self._budgets(full_side)
+    # Re-entrant: between two bands the scheduler may draw other clients' low frames.
+    self._lock = threading.RLock()
+
+  def _budgets(self, full_side: Optional[int]) -> Tuple[Dict[str, int], Dict[str, int]]:
+    """({level: pixels}, {level: rays a band}) of the two levels."""
+    trained = self.scene.height * self.scene.width
     full = trained if full_side is None else full_side ** 2
     # A baked run's low frames have 1/4 of the pixels (half of each side): it draws them in
     # about the time the exact renderer draws 1/16.
     divisor = BAKED_LOW_LEVEL_DIVISOR if self.baked is not None else LOW_LEVEL_DIVISOR
-    self.pixels = {"low": max(1, trained // divisor), "full": full}
+    pixels = {"low": max(1, trained // divisor), "full": full}
     # Frame sizes round to the aspect ratio: a frame has at most pixels + 2 sqrt(pixels) + 1.
     slack = lambda n: n + 2 * int(np.ceil(np.sqrt(n))) + 1
     # One band for a low frame; a full frame in equal bands of at most render_chunk rays
     # (little padding in the last band).
     bands = -(-slack(full) // self.config.render_chunk)
-    self.chunks = {"low": slack(self.pixels["low"]), "full": -(-slack(full) // bands)}
-    # Re-entrant: between two bands the scheduler may draw other clients' low frames.
-    self._lock = threading.RLock()
+    return pixels, {"low": slack(pixels["low"]), "full": -(-slack(full) // bands)}
 
   @property
   def has_styles(self) -> bool:
