@@ -181,6 +181,29 @@ def one_line_error(log, *needles):
 
 
 def test_bad_process_settings_end_with_one_line(inputs, tmp_path):
+  """Settings refused before the processes meet: ids out of range, counts, an address."""
+  env = env_with(inputs, 1)
+  run = str(tmp_path / "run")
+  argv = command("nerf", inputs, run, 2, 1)
+  # Ids out of range, a count of 0, an id without a count, a malformed address.
+  for extra, needle in [(["--num-processes", "2", "--process-id", "2"], "out of range 0..1"),
+                        (["--num-processes", "0", "--process-id", "0"], "at least 1"),
+                        (["--process-id", "0"], "--num-processes and --process-id")]:
+    log = str(tmp_path / "range")
+    coordinator = ["--coordinator", "127.0.0.1:1"] if "--num-processes" in extra else []
+    assert wait_all([start([*argv, *coordinator, *extra], env, log)], 60) == [2]
+    one_line_error(log, needle)
+  log = str(tmp_path / "address")
+  assert wait_all([start([*argv, "--coordinator", "localhost", "--num-processes", "2",
+                          "--process-id", "0"], env, log)], 60) == [2]
+  one_line_error(log, "expected HOST:PORT")
+  assert not os.path.exists(run)
+
+
+@pytest.mark.slow  # 25 s of processes waiting for each other; the settings above stay
+def test_processes_that_cannot_meet_or_agree_end_with_one_line(inputs, tmp_path):
+  """A coordinator nobody listens on, a process alone, two of one id, settings that differ,
+  pmap across processes: every process stops with one line, nothing is written."""
   env = env_with(inputs, 1)
   run = str(tmp_path / "run")
   argv = command("nerf", inputs, run, 2, 1)
@@ -197,18 +220,7 @@ def test_bad_process_settings_end_with_one_line(inputs, tmp_path):
                 "--process-id", "0", "--coordinator-timeout", "2"], env, log)
   assert wait_all([proc], 60) == [2]
   one_line_error(log, "process 1 of 2 did not join within 2 s")
-  # Ids out of range, twice the same id, counts that differ, a malformed address.
-  for extra, needle in [(["--num-processes", "2", "--process-id", "2"], "out of range 0..1"),
-                        (["--num-processes", "0", "--process-id", "0"], "at least 1"),
-                        (["--process-id", "0"], "--num-processes and --process-id")]:
-    log = str(tmp_path / "range")
-    coordinator = ["--coordinator", "127.0.0.1:1"] if "--num-processes" in extra else []
-    assert wait_all([start([*argv, *coordinator, *extra], env, log)], 60) == [2]
-    one_line_error(log, needle)
-  log = str(tmp_path / "address")
-  assert wait_all([start([*argv, "--coordinator", "localhost", "--num-processes", "2",
-                          "--process-id", "0"], env, log)], 60) == [2]
-  one_line_error(log, "expected HOST:PORT")
+  # Twice the same id.
   log = str(tmp_path / "twice")
   port = free_port()
   procs = [start([*argv, "--coordinator", f"127.0.0.1:{port}", "--num-processes", "3",

@@ -110,6 +110,7 @@ def test_packed_distortion_with_empty_cells_equals_the_double_sum():
     np.testing.assert_allclose(got[r], want, rtol=1e-5)
 
 
+@pytest.mark.slow  # 36 s; the packed loss's values and gradients stay in the default suite
 def test_distortion_trains_with_the_grid_sampler(tiny_blender):
   """The fast preset accepts the distortion loss: it is in the step's stats, finite, and
   training with it leaves a fixed batch's weights less spread than training without it."""

@@ -184,7 +184,7 @@ def test_training_lowers_the_loss_on_a_fixed_batch(feature_world, sampler):
   assert last < 0.8 * first, (first, last)
 
 
-@pytest.mark.parametrize("target", ["photo", "encoder"])
+@pytest.mark.parametrize("target", ["photo", pytest.param("encoder", marks=pytest.mark.slow)])
 def test_the_decodability_loss_paints_patches_of_cells_and_trains_the_field_alone(
     feature_world, target):
   from msnerf_jax.style import transfer as stylize  # pylint: disable=g-import-not-at-top
