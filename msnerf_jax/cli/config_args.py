@@ -7,6 +7,7 @@ from typing import Any, Dict, Iterable, Optional, Sequence, Set, Tuple, Type
 from msnerf_jax.cli.common import add_parallel_arguments, start_processes
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.config import flat_fields, help_of, setting_of
+from msnerf_jax.core.errors import UserError
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, cls: Type, defaults: Any,
@@ -109,7 +110,6 @@ def trainer_config(args: argparse.Namespace, cls: Type, kind: str, lr_final_rati
   the other processes first, refuses an --out that is a file, and starts from --config RUN
   where given. --lr sets lr_init, and lr_final = lr * `lr_final_ratio` too when the ratio
   is not 0, unless --lr-final is given."""
-  from msnerf_jax.core.errors import UserError  # pylint: disable=g-import-not-at-top
   shows = start_processes(args)
   if os.path.isfile(args.out):
     raise UserError(f"{args.out}: is a file, expected a run folder")

@@ -260,7 +260,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   content_pools, style_pools, record = _read_inputs(config, content_dirs, style_dir, log)
   distributed.check_same(record, "settings")
   distributed.primary_first(_prepare, run_dir, record)
-  start = _latest_step(run_dir)
+  start = checkpoint_lib.latest_saved_step(run_dir) or None
   if start is not None:
     log(f"resuming {run_dir} from step {start}")
     if start >= config.steps:
@@ -278,9 +278,7 @@ def train(config: config_lib.AdainConfig, content_dirs: Sequence[str], style_dir
   try:
     summary = loop_lib.fit(new_state(init_params, config), hooks.step,
                            lambda step: device_rows(batches(step), devices.size),
-                           run_dir=run_dir, steps=config.steps,
-                           checkpoint_every=config.checkpoint_every,
-                           keep_checkpoints=config.keep_checkpoints,
+                           run_dir=run_dir, **loop_lib.bookkeeping(config),
                            parallel=devices, desc="adain", progress=progress,
                            on_step=hooks.on_step, history=False,
                            shown=("content", "style") + (("shift",) if config.shift_weight > 0
@@ -296,15 +294,6 @@ def _prepare(run_dir: str, record: Dict[str, Any]) -> None:
   files.atomic_write_bytes(os.path.join(run_dir, "holdout.txt"),
                            "".join(p + "\n" for p in record["holdout"]).encode())
   os.makedirs(os.path.join(run_dir, "samples"), exist_ok=True)
-
-
-def _latest_step(run_dir: str) -> Optional[int]:
-  """The step of the run's latest checkpoint, None without one."""
-  checkpoints = checkpoint_lib.Checkpoints(run_dir)
-  try:
-    return checkpoints.latest_step()
-  finally:
-    checkpoints.close()
 
 
 def _finish(run_dir: str, hooks: _Hooks, seconds: float, log) -> TrainResult:

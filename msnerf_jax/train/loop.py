@@ -149,7 +149,7 @@ class _Run:
 
 def bookkeeping(optim) -> Dict[str, int]:
   """fit's steps, checkpoint_every and keep_checkpoints from a config's optimisation block
-  (config_lib.OptimConfig)."""
+  (config_lib.OptimConfig), or from an AdaIN config, which holds them at its top."""
   return {"steps": optim.steps, "checkpoint_every": optim.checkpoint_every,
           "keep_checkpoints": optim.keep_checkpoints}
 
