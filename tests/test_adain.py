@@ -136,6 +136,34 @@ def test_match_color_matches_content_mean_and_covariance():
   np.testing.assert_allclose(np.cov(out.reshape(-1, 3).T), np.cov(content.reshape(-1, 3).T), atol=2e-3)
 
 
+def test_colour_map_weighted_by_opacity_moves_the_scene_not_its_background():
+  """A dark object on a white background, mapped to a blue-and-white style: weighted by the
+  opacity, the object's own pixels get the style's mean and covariance (the white around it
+  does not count); unweighted, the white background takes the style's light colours and the
+  object ends up darker than any of them."""
+  rng = np.random.default_rng(1)
+  photo = np.ones((24, 24, 3), np.float32)
+  alpha = np.zeros((24, 24), np.float32)
+  alpha[6:18, 6:18] = 1.0
+  photo[6:18, 6:18] = 0.1 + 0.2 * rng.random((12, 12, 3))
+  style = np.stack([0.2 + 0.8 * rng.random((32, 32)), 0.5 + 0.5 * rng.random((32, 32)),
+                    np.full((32, 32), 0.95)], -1).astype(np.float32)
+  weighted = stylize.apply_colour_map(jnp.asarray(photo), *stylize.colour_map(
+      jnp.asarray(photo), jnp.asarray(style), source_weights=jnp.asarray(alpha)))
+  plain = stylize.apply_colour_map(jnp.asarray(photo), *stylize.colour_map(
+      jnp.asarray(photo), jnp.asarray(style)))
+  inside = np.asarray(weighted)[6:18, 6:18].reshape(-1, 3)
+  np.testing.assert_allclose(inside.mean(0), style.reshape(-1, 3).mean(0), atol=0.03)
+  np.testing.assert_allclose(np.cov(inside.T, bias=True), np.cov(style.reshape(-1, 3).T),
+                             atol=0.01)
+  assert np.asarray(plain)[6:18, 6:18].mean() < inside.mean() - 0.1
+  # All weights alike: the unweighted map, up to its n - 1 in the covariance.
+  ones = stylize.colour_map(jnp.asarray(photo), jnp.asarray(style),
+                            source_weights=jnp.ones((24, 24)))
+  for a, b in zip(ones, stylize.colour_map(jnp.asarray(photo), jnp.asarray(style))):
+    np.testing.assert_allclose(a, b, rtol=5e-3, atol=1e-4)
+
+
 def test_cover_crop_and_padding():
   image = np.zeros((100, 50, 3), np.float32)
   image[:, 20:30] = 1.0  # a vertical stripe in the middle

@@ -16,11 +16,11 @@ from msnerf_jax.data.scene import load_scene
 
 TINY = ["--size", "16", "--views", "4", "--adain-steps", "2", "--adain-size", "16",
         "--nerf-steps", "4", "--nerf-batch-rays", "64", "--ms-steps", "3", "--ms-batch-rays", "32",
-        "--features-steps", "3", "--features-batch-cells", "8", "--frames", "4", "--grid-views", "2",
-        "--no-progress"]
-OUTPUTS = ("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "features.mp4", "features.gif",
-           "grid.png")
-STAGES = ("adain", "nerf", "stylized", "multistyle", "features", "renders")
+        "--features-steps", "3", "--features-batch-cells", "8", "--paint-steps", "4",
+        "--frames", "4", "--grid-views", "2", "--no-progress"]
+OUTPUTS = ("painted.mp4", "painted.gif", "painted_morph.mp4", "painted_morph.gif", "styles.mp4",
+           "styles.gif", "features.mp4", "features.gif", "grid.png")
+STAGES = ("adain", "nerf", "stylized", "multistyle", "features", "painted", "renders")
 
 
 def test_scene_and_styles_are_deterministic_blender_data(tmp_path):
@@ -54,36 +54,42 @@ def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
     assert os.path.getsize(os.path.join(renders, name)) > 0
   grid = np.asarray(Image.open(os.path.join(renders, "grid.png")), np.float32) / 255
   n_styles = 4  # stripes, mosaic, swirl, original
-  # A header line over the two models, a label column, then per style its picture, 2 views
-  # of the paper's model and 2 of the feature field: the tiles are the rendered frames.
+  # A header line over the methods, a label column, then per style its picture and 2 views of
+  # each method (painted, feature field, the paper's model, per-frame AdaIN), groups 6 px
+  # apart: the tiles are the rendered frames.
   assert grid.shape[0] == 12 + 2 + n_styles * 16 + (n_styles - 1) * 2
+  tile = lambda group, view: grid[14:30, -16 - (3 - group) * 40 - (1 - view) * 18:][:, :16]
   stripes = np.asarray(Image.open(os.path.join(out, "styles", "stripes.png")), np.float32) / 255
-  assert np.abs(grid[14:30, -96:-80].mean((0, 1)) - stripes.mean((0, 1))).max() < 0.1
-  frames = imageio.mimread(os.path.join(renders, "features.gif"))
-  right = grid[14:30, -16:]  # first style, last view of the feature field
-  assert np.abs(right - frames[2][:, :16, :3] / 255).mean() < 0.03  # (a GIF's palette)
-  assert np.ptp(right) > 0
-  morph = imageio.mimread(os.path.join(renders, "morph.gif"))
+  assert np.abs(grid[14:30, -176:-160].mean((0, 1)) - stripes.mean((0, 1))).max() < 0.1
+  for group, video_name in enumerate(("painted", "features", "styles")):
+    frames = imageio.mimread(os.path.join(renders, video_name + ".gif"))
+    # first style, second grid view (frame 2 of 4) of each model: the grid shows its frames
+    assert np.abs(tile(group, 1) - frames[2][:, :16, :3] / 255).mean() < 0.03  # (GIF palette)
+    assert np.ptp(tile(group, 1)) > 0
+    assert len(frames) == 4 and frames[0].shape[:2] == (16, n_styles * 16 + (n_styles - 1) * 2)
+  # Per-frame AdaIN: the NeRF's view stylized on its own, unlike the paper's model's frame.
+  assert np.ptp(tile(3, 0)) > 0 and np.abs(tile(3, 0) - tile(2, 0)).mean() > 0.01
+  morph = imageio.mimread(os.path.join(renders, "painted_morph.gif"))
   assert len(morph) == 4 and morph[0].shape[:2] == (16, 16)
   assert np.ptp(np.stack(morph).astype(np.float32)) > 0
-  reader = imageio.get_reader(os.path.join(renders, "styles.mp4"))
+  reader = imageio.get_reader(os.path.join(renders, "painted.mp4"))
   frames = [f for f in reader]
   reader.close()
   assert len(frames) == 4 and frames[0].shape[:2] == (16, n_styles * 16 + (n_styles - 1) * 2)
+  assert "painted_morph.mp4 (style morph along the orbit, painted in 3D)" in first
   summary = json.load(open(os.path.join(out, "summary.json")))
-  # The painted stage is off in the demo (--paint-steps 0).
   assert {s["stage"]: s["status"] for s in summary["stages"]} == {
-      **{stage: "ran" for stage in STAGES}, "painted": "off"}
+      stage: "ran" for stage in STAGES}
   assert "adain" in open(os.path.join(out, "summary.txt")).read()
 
   mtimes = {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS}
   assert cli.main(["demo", "--out", out, *TINY]) == 0
   second = capsys.readouterr().out
-  assert second.count("already complete, skipped") == 6
+  assert second.count("already complete, skipped") == 7
   assert {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS} == mtimes
   summary = json.load(open(os.path.join(out, "summary.json")))
   assert {s["stage"]: s["status"] for s in summary["stages"]} == {
-      **{stage: "skipped" for stage in STAGES}, "painted": "off"}
+      stage: "skipped" for stage in STAGES}
 
 
 def test_pipeline_bad_input_is_one_line_error(tmp_path, capsys):

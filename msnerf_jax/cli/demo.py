@@ -18,7 +18,22 @@ def demo_settings():
   return dataclasses.replace(Settings(), adain_steps=800, adain_size=64, adain_batch=4,
                              adain_lr=1e-3, style_weight=0.5, nerf_steps=1000,
                              nerf_batch_rays=1024, ms_steps=1500, ms_batch_rays=512,
-                             features_steps=400, features_batch_cells=512, fps=10)
+                             features_steps=400, features_batch_cells=512, paint_steps=300,
+                             fps=10)
+
+
+def look_at(renders, settings) -> str:
+  """The line naming the renders to look at, the first model's first."""
+  from msnerf_jax.pipeline.renders import methods, morph_name  # pylint: disable=g-import-not-at-top
+  what = {"painted": "painted in 3D", "features": "painted by the feature field",
+          "styles": "the paper's multi-style NeRF"}
+  files = [f"{os.path.join(renders, morph_name(settings) + '.mp4')} (style morph along the "
+           f"orbit, {what[methods(settings)[0].video]})",
+           f"{os.path.join(renders, 'grid.png')} (styles x views, every model and per-frame "
+           "AdaIN)"]
+  files += [f"{os.path.join(renders, m.video + '.mp4')} (all styles side by side, "
+            f"{what[m.video]})" for m in methods(settings)]
+  return "look at: " + ", ".join(files)
 
 
 def register(commands, formatter):
@@ -71,13 +86,8 @@ def cmd_demo(args):
   if styles is None:
     styles = demo.write_styles(os.path.join(args.out, "styles"), seed=args.seed)
     print(f"built-in styles: {', '.join(styles)}")
-  summary = run_pipeline(data, styles, args.out, args.decoder,
-                         settings_from_args(args, Settings),
+  settings = settings_from_args(args, Settings)
+  summary = run_pipeline(data, styles, args.out, args.decoder, settings,
                          progress=not args.no_progress)
   print("\n" + format_summary(summary), end="")
-  renders = os.path.join(args.out, "renders")
-  features = (f", {os.path.join(renders, 'features.mp4')} (the same, painted by the feature "
-              "field)") if args.features_steps else ""
-  print(f"\nlook at: {os.path.join(renders, 'morph.mp4')} (style morph along the orbit), "
-        f"{os.path.join(renders, 'grid.png')} (styles x views), "
-        f"{os.path.join(renders, 'styles.mp4')} (all styles side by side){features}")
+  print("\n" + look_at(os.path.join(args.out, "renders"), settings))

@@ -23,8 +23,7 @@ _HELP = {
     "ms_batch_rays": "multi-style pixels per step (each supervised in every style)",
     "features_steps": "feature-field training steps (0 = no feature field)",
     "features_batch_cells": "feature-field relu4_1 cells per step",
-    "paint_steps": "painted colour fields: training steps (0 = none; `msnerf paint train`'s "
-                   "default is 1000)",
+    "paint_steps": "painted colour fields: training steps (0 = none)",
     "frames": "frames of the videos (0 = the scene's whole render path)",
     "fps": "frames per second of the videos",
     "grid_views": "views (columns) of the grid",
@@ -52,11 +51,12 @@ def register(commands, formatter):
   p = commands.add_parser(
       "pipeline", formatter_class=formatter,
       help="every stage in one command: decoder, NeRF, stylized views, multi-style NeRF, "
-           "feature field, renders",
+           "feature field, painted colour fields, renders",
       description="Runs AdaIN decoder training (on the scene's training views and the styles; "
                   "skipped with --decoder), NeRF training, the stylized dataset (with the "
                   "original views), multi-style training (the paper's model), feature-field "
-                  "training (AdaIN in 3D) and the renders, each in a subfolder "
+                  "training (AdaIN in 3D), painted colour fields (strokes in 3D) and the "
+                  "renders (painted first), each in a subfolder "
                   "of --out. A finished stage is skipped on a re-run; an interrupted one "
                   "resumes. Ends with a summary (also OUT/summary.txt).",
       epilog="example: msnerf pipeline --data ../shared/data/nerf_synthetic/lego --downscale 8 "

@@ -1,7 +1,11 @@
-"""The pipeline's last stage: the multi-style run's video of every style side by side and of
-a style morph, the feature field's, and the grid of styles x views of both models."""
+"""The pipeline's last stage: each trained model's video of every style side by side, a style
+morph of the painted run (or of the paper's model without one), and one grid of styles x views
+whose column groups are the methods in the order users see them: painted, feature field, the
+paper's multi-style NeRF, per-frame AdaIN (each NeRF view stylized on its own)."""
 
+import json
 import os
+from typing import List, NamedTuple
 
 import numpy as np
 
@@ -9,67 +13,124 @@ from msnerf_jax.core import files
 from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import video
-from msnerf_jax.data.stylized import style_name
+from msnerf_jax.data.stylized import MANIFEST, style_name
+from msnerf_jax.eval import paths
+from msnerf_jax.kinds.registry import get_kind
 from msnerf_jax.kinds.renderers import style_rendering
 from msnerf_jax.kinds.runs import load_run_and_scene
+from msnerf_jax.kinds.stylized_scenes import load_decoder
+from msnerf_jax.models import vgg
 from msnerf_jax.pipeline.settings import Settings
 from msnerf_jax.style import vectors as styles_lib
 
 
-def _feature_renderer(out, styles, names, s: Settings):
-  """Renders one camera in the styles `names` by the feature run (the statistics of the style
-  images cover-cropped as per-frame AdaIN crops them; "original": the scene's own, i.e. the
-  decoder's picture of the scene's features)."""
-  run, scene = load_run_and_scene(os.path.join(out, "features"), "features")
+class Method(NamedTuple):
+  folder: str  # the stage's run folder under OUT.
+  kind: str
+  video: str  # OUT/renders/<video>.mp4/.gif: every style side by side.
+  label: str  # the grid's column group.
+
+
+PAINTED = Method("painted", "painted", "painted", "painted (strokes in 3D)")
+FEATURES = Method("features", "features", "features", "feature field (AdaIN in 3D)")
+MULTISTYLE = Method("multistyle", "multistyle", "styles", "multi-style NeRF (paper)")
+PER_FRAME = "per-frame AdaIN"
+
+
+def methods(s: Settings) -> List[Method]:
+  """The trained models the renders show, first the one users should see first."""
+  return (([PAINTED] if s.paint_steps else []) + ([FEATURES] if s.features_steps else [])
+          + [MULTISTYLE])
+
+
+def morph_name(s: Settings) -> str:
+  """The style-morph video's name: the first method's."""
+  first = methods(s)[0]
+  return "morph" if first is MULTISTYLE else f"{first.video}_morph"
+
+
+def render_files(s: Settings) -> List[str]:
+  """The files the renders stage writes."""
+  names = [m.video for m in methods(s)] + [morph_name(s)]
+  return [n + ext for n in names for ext in (".mp4", ".gif")] + ["grid.png"]
+
+
+def _renderer(out, method: Method, styles, names, s: Settings):
+  """(render of one camera in K styles given as K vectors -> [K, H, W, 3], {name: vector} of
+  `names`) of one method's run. The feature field paints the style images (cover-cropped as
+  per-frame AdaIN crops them); the others render their own trained styles of those names
+  ("original": the scene's own look)."""
+  run, scene = load_run_and_scene(os.path.join(out, method.folder), method.kind)
   table, size, render = style_rendering(run, scene, s.chunk or None)
   cache = {}
-  vectors = {**table,
-             **{style_name(p): styles_lib.resolve_style(p, {}, cache, size) for p in styles}}
-  return lambda c2w: render(c2w, [vectors[n] for n in names])
+  if method is FEATURES:
+    table = {**table, **{style_name(p): styles_lib.resolve_style(p, {}, cache, size)
+                         for p in styles}}
+  return render, {n: table[n] for n in names}
+
+
+def _per_frame_adain(out, decoder_dir, names, poses) -> List[List[np.ndarray]]:
+  """[style][view] frames of the NeRF at `poses`, each stylized on its own by the decoder as
+  the stylized dataset was (its alpha and scale; "original": the NeRF's frame itself)."""
+  nerf, scene = load_run_and_scene(os.path.join(out, "nerf"), "nerf")
+  with open(os.path.join(out, "stylized", MANIFEST)) as f:
+    manifest = json.load(f)
+  sources = {x["name"]: x for x in manifest["styles"] if x.get("source")}
+  base = paths.nerf_path(scene, nerf.params, nerf.config, poses)
+  decoder, encoder = load_decoder(decoder_dir), vgg.load_vgg_params()
+  rows = []
+  for name in names:
+    if name not in sources:
+      rows.append([b["rgb"] for b in base])
+      continue
+    picture = images_lib.read_image(sources[name]["source"], max_side=1024)
+    rows.append(paths.per_frame_adain(decoder, encoder, base, picture, sources[name]["alpha"],
+                                      scene.white_background, manifest["stylize_scale"]))
+  return rows
 
 
 def _style_tile(styles, name, scene):
   """The grid's first column: the style picture of `name` cover-cropped to the view's size,
   or, for the original, the first training photo."""
-  paths = {style_name(p): p for p in styles}
-  if name not in paths:
+  paths_ = {style_name(p): p for p in styles}
+  if name not in paths_:
     return scene.images[scene.split("train")[0]]
-  return images_lib.cover_crop(images_lib.read_image(paths[name], max_side=1024), scene.height,
+  return images_lib.cover_crop(images_lib.read_image(paths_[name], max_side=1024), scene.height,
                                scene.width)
 
 
-def run_renders(out, styles, s: Settings, progress):
-  """Writes OUT/renders/ (render_files) and grid_rows.txt; returns the files written."""
-  run, scene = load_run_and_scene(os.path.join(out, "multistyle"), "multistyle")
-  vectors, _, render = style_rendering(run, scene, s.chunk or None)
-  names = list(vectors)
-  poses = scene.path_poses(s.frames)
-  folder = os.path.join(out, "renders")
-  # All styles at once per camera (one trunk pass): the side-by-side video and the grid.
-  sweeps = [render(c2w, list(vectors.values()))
-            for c2w in progress_bar(poses, desc="render styles", disable=not progress)]
-  written = video.write_videos(os.path.join(folder, "styles"),
-                               [video.grid([sw]) for sw in sweeps], s.fps)
-  morph_names = [n for n in names if n != styles_lib.ORIGINAL] or names
-  path = styles_lib.morph_loop([vectors[n] for n in morph_names], len(poses))
+def _write_morph(folder, name, render, vectors, poses, s: Settings, progress) -> List[str]:
+  """OUT/renders/<name>.mp4/.gif: one orbit whose style morphs through the styles."""
+  ends = [v for n, v in vectors.items() if n != styles_lib.ORIGINAL] or list(vectors.values())
+  path = styles_lib.morph_loop(ends, len(poses))
   frames = [render(c2w, [v])[0] for c2w, v in progress_bar(
       list(zip(poses, path)), desc="render morph", disable=not progress)]
-  written += video.write_videos(os.path.join(folder, "morph"), frames, s.fps)
+  return video.write_videos(os.path.join(folder, name), frames, s.fps)
+
+
+def run_renders(out, styles, decoder_dir, s: Settings, progress) -> List[str]:
+  """Writes OUT/renders/ (render_files) and grid_rows.txt; returns the files written."""
+  run, scene = load_run_and_scene(os.path.join(out, MULTISTYLE.folder), MULTISTYLE.kind)
+  # The styles of the paper's model, "original" included; every method renders them.
+  names = list(get_kind(MULTISTYLE.kind).style_table(run, scene)[0])
+  poses = scene.path_poses(s.frames)
+  folder = os.path.join(out, "renders")
   views = np.linspace(0, len(poses), max(1, s.grid_views) + 1)[:-1].round().astype(int)
-  groups = [[[_style_tile(styles, n, scene)], [sweeps[v][m] for v in views]]
+  columns, written = [], []
+  for method in methods(s):
+    render, vectors = _renderer(out, method, styles, names, s)
+    if not columns:  # the first method's style morph along the orbit
+      written += _write_morph(folder, morph_name(s), render, vectors, poses, s, progress)
+    # All styles at once per camera (one pass of the geometry): the side-by-side video.
+    sweeps = [render(c2w, list(vectors.values())) for c2w in progress_bar(
+        poses, desc=f"render {method.folder}", disable=not progress)]
+    written += video.write_videos(os.path.join(folder, method.video),
+                                  [video.grid([sw]) for sw in sweeps], s.fps)
+    columns.append([[sweeps[v][m] for v in views] for m in range(len(names))])
+  columns.append(_per_frame_adain(out, decoder_dir, names, poses[views]))
+  groups = [[[_style_tile(styles, n, scene)]] + [c[m] for c in columns]
             for m, n in enumerate(names)]
-  labels = ["style", "multi-style NeRF (paper)"]
-  if s.features_steps:
-    # One feature render per camera, every style painted from it.
-    render_features = _feature_renderer(out, styles, names, s)
-    feature_sweeps = [render_features(c2w) for c2w in progress_bar(
-        poses, desc="render feature field", disable=not progress)]
-    written += video.write_videos(os.path.join(folder, "features"),
-                                  [video.grid([sw]) for sw in feature_sweeps],
-                                  s.fps)
-    for m, row in enumerate(groups):
-      row.append([feature_sweeps[v][m] for v in views])
-    labels.append("feature field (AdaIN in 3D)")
+  labels = ["style"] + [m.label for m in methods(s)] + [PER_FRAME]
   path = os.path.join(folder, "grid.png")
   images_lib.write_image(path, video.labelled_grid(groups, names, labels))
   written.append(path)

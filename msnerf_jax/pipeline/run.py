@@ -1,5 +1,5 @@
 """Every stage in one call: AdaIN decoder -> NeRF -> stylized dataset -> multi-style NeRF ->
-feature field -> renders.
+feature field -> painted colour fields -> renders.
 
 Each stage writes one subfolder of the output folder:
 
@@ -9,11 +9,12 @@ Each stage writes one subfolder of the output folder:
   stylized/    the stylized dataset (every view in every style, plus the original)
   multistyle/  the multi-style NeRF run (the paper's model)
   features/    the feature-field run (AdaIN in 3D; skipped with features_steps 0)
-  painted/     the painted run (colour fields per style; only with paint_steps > 0)
-  renders/     styles.mp4/.gif (all styles side by side along the orbit), morph.mp4/.gif (one
-               orbit whose style morphs through the styles), features.mp4/.gif (as styles.mp4,
-               painted by the feature field) and grid.png (styles x views, the paper's model and
-               the feature field side by side)
+  painted/     the painted run (colour fields per style; skipped with paint_steps 0)
+  renders/     one video of every style side by side per model (painted.mp4, features.mp4,
+               styles.mp4 for the paper's model, each also .gif), a style morph along the
+               orbit of the first of them (painted_morph.mp4, or morph.mp4 without a painted
+               run) and grid.png (styles x views: painted, feature field, the paper's model
+               and per-frame AdaIN side by side)
 
 plus pipeline.json (what each stage was run with) and summary.json / summary.txt.
 
@@ -116,12 +117,13 @@ def format_summary(summary: Dict[str, Any]) -> str:
     lines.append(f"  {r['stage']:<11} {what}")
     for path in r["outputs"]:
       lines.append(f"  {'':<11}   {path}")
+  painted = summary["settings"].get("paint_steps")
+  if painted:
+    lines.append(f"its painted styles (strokes in 3D): msnerf render --run "
+                 f"{os.path.join(summary['out'], 'painted')} --out VIDEO")
   if summary["settings"].get("features_steps"):
     lines.append(f"paint it in any style: msnerf render --run "
                  f"{os.path.join(summary['out'], 'features')} --style IMG --out VIDEO")
-  if summary["settings"].get("paint_steps"):
-    lines.append(f"its painted styles (strokes in 3D): msnerf render --run "
-                 f"{os.path.join(summary['out'], 'painted')} --out VIDEO")
   lines.append(f"look around it in the browser: msnerf view --run "
-               f"{os.path.join(summary['out'], 'multistyle')}")
+               f"{os.path.join(summary['out'], 'painted' if painted else 'multistyle')}")
   return "\n".join(lines) + "\n"

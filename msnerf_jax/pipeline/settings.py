@@ -4,7 +4,7 @@ stage starts."""
 
 import dataclasses
 import os
-from typing import Optional, Sequence, Tuple
+from typing import Optional, Sequence
 
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core.errors import UserError
@@ -30,9 +30,7 @@ class Settings:
   ms_batch_rays: int = 1024
   features_steps: int = 2000  # 0 = no feature field.
   features_batch_cells: int = 512
-  # Off by default: on the demo's 2-core CPU budget it would add minutes (see
-  # docs/results/painted.md for what 1000 steps cost on lego).
-  paint_steps: int = 0  # 0 = no painted run.
+  paint_steps: int = 1000  # 0 = no painted run (`msnerf paint train`'s default length).
   frames: int = 0  # frames of the videos (0 = the scene's whole render path).
   fps: int = 12
   grid_views: int = 4
@@ -72,12 +70,6 @@ def paint_config(s: Settings) -> config_lib.PaintConfig:
                              init_steps=min(100, s.paint_steps // 10),
                              lr_decay_steps=max(1, s.paint_steps), seed=s.seed,
                              checkpoint_every=max(1, min(250, s.paint_steps)))
-
-
-def render_files(s: Settings) -> Tuple[str, ...]:
-  """The files the renders stage writes."""
-  return (("styles.mp4", "styles.gif", "morph.mp4", "morph.gif", "grid.png")
-          + (("features.mp4", "features.gif") if s.features_steps else ()))
 
 
 def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[str],

@@ -18,8 +18,7 @@ from msnerf_jax.kinds import features as feature_kind
 from msnerf_jax.kinds import stylized_scenes
 from msnerf_jax.pipeline import renders
 from msnerf_jax.pipeline.settings import (Settings, adain_config, feature_config,
-                                          multistyle_config, nerf_config, paint_config,
-                                          render_files)
+                                          multistyle_config, nerf_config, paint_config)
 from msnerf_jax.train import adain as train_adain
 from msnerf_jax.train import features as train_features
 from msnerf_jax.train import multistyle as train_multistyle
@@ -233,11 +232,15 @@ def _renders_key(c: Context):
          "upstream": _multistyle_key(c)}
   if s.features_steps:  # records of earlier versions (no feature field) stay valid
     key.update(features=_features_key(c), styles=c.styles)
+  # The grid's per-frame AdaIN column and the painted videos (earlier records drew neither).
+  key.update(per_frame=_stylized_key(c))
+  if s.paint_steps:
+    key.update(painted=_painted_key(c))
   return key
 
 
 def _render_outputs(c: Context):
-  return [c.path("renders", f) for f in render_files(c.settings)]
+  return [c.path("renders", f) for f in renders.render_files(c.settings)]
 
 
 def _trained(name: str, steps: Callable[[Settings], int]):
@@ -261,6 +264,7 @@ STAGES: Sequence[Stage] = (
     Stage("painted", _painted_key, _trained("painted", lambda c: c.settings.paint_steps),
           _run_painted, _folder("painted"), _painted_off),
     Stage("renders", _renders_key, lambda c: all(map(os.path.exists, _render_outputs(c))),
-          lambda c: renders.run_renders(c.out, c.styles, c.settings, c.progress),
+          lambda c: renders.run_renders(c.out, c.styles, c.decoder_dir, c.settings,
+                                              c.progress),
           _render_outputs),
 )

@@ -20,11 +20,17 @@ from msnerf_jax.core.progress import progress_bar
 Stats = Tuple[Any, Any]
 
 
-def colour_map(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5
+def colour_map(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5,
+               source_weights: Optional[jnp.ndarray] = None
                ) -> Tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
   """The affine map of RGB values that gives the pixels of `source` [..., 3] (all of them
   together) the mean and covariance of `target`'s [..., 3]: x' = T (x - mu_s) + mu_t with
-  T = C_t^1/2 C_s^-1/2. Returns (T [3, 3], mu_s [3], mu_t [3])."""
+  T = C_t^1/2 C_s^-1/2. Returns (T [3, 3], mu_s [3], mu_t [3]).
+
+  source_weights: [...] (source's shape without its last axis), each pixel's weight in
+  source's mean and covariance, e.g. its opacity, so that a white background does not count
+  as the scene's colour; None: every pixel alike.
+  """
   def stats(x):
     flat = x.reshape(-1, 3)
     mu = jnp.mean(flat, axis=0)
@@ -33,11 +39,19 @@ def colour_map(source: jnp.ndarray, target: jnp.ndarray, eps: float = 1e-5
     cov = centred.T @ centred / max(flat.shape[0] - 1, 1) + eps * jnp.eye(3)
     return mu, cov
 
+  def weighted_stats(x, w):
+    flat, w = x.reshape(-1, 3), jnp.reshape(w, (-1, 1))
+    total = jnp.maximum(jnp.sum(w), eps)
+    mu = jnp.sum(w * flat, axis=0) / total
+    centred = flat - mu
+    return mu, (w * centred).T @ centred / total + eps * jnp.eye(3)
+
   def sqrtm(c, power):
     vals, vecs = jnp.linalg.eigh(c)
     return (vecs * jnp.maximum(vals, eps) ** power) @ vecs.T
 
-  mu_s, cov_s = stats(source)
+  mu_s, cov_s = (stats(source) if source_weights is None
+                 else weighted_stats(source, source_weights))
   mu_t, cov_t = stats(target)
   return sqrtm(cov_t, 0.5) @ sqrtm(cov_s, -0.5), mu_s, mu_t
 

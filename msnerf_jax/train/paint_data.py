@@ -137,8 +137,13 @@ def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str
   compile_train_step, a static size)."""
   encoder = vgg.load_vgg_params()
   photos = np.asarray(scene.images[scene.split("train")], np.float32)
-  maps = [colour_map(jnp.asarray(photos), jnp.asarray(s)) if config.colour_transfer else
-          (jnp.eye(3), jnp.zeros(3), jnp.zeros(3)) for s in styles]
+  # On white-background scenes the map moves the scene's colours, not the background's: the
+  # pixels count by the NeRF's opacity (the targets are put back over white by it too).
+  opacity = (np.asarray(cache["accumulation"], np.float32).reshape(photos.shape[:3])
+             if scene.white_background else None)
+  maps = [colour_map(jnp.asarray(photos), jnp.asarray(s), source_weights=opacity)
+          if config.colour_transfer else (jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
+          for s in styles]
   targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
   stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
   crops = {}
