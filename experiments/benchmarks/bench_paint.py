@@ -38,7 +38,9 @@ def main(argv=None):
         f"{run.params['paint']['colours'].shape[1] - 1} painted vertices of "
         f"{run.config.resolution}^3, {run.params['paint']['colours'].nbytes / 2 ** 20:.1f} MiB "
         "of colours")
-  camera = int(scene.split("test")[0]) if len(scene.split("test")) else 0
+  held_out = next((n for n in ("test", "val") if n in scene.splits and len(scene.split(n))),
+                  None)  # a held-out view where the scene has one
+  camera = int(scene.split(held_out)[0]) if held_out else 0
   median = lambda fn: statistics.median(call_times(fn, args.repeats))
   photo = median(lambda: render_view(scene, run.params["nerf"], run.config.nerf, camera))
   painted = median(lambda: render_painted(scene, run.params, run.config, camera)["rgb"])
