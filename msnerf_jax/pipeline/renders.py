@@ -3,7 +3,6 @@ morph of the painted run (or of the paper's model without one), and one grid of 
 whose column groups are the methods in the order users see them: painted, feature field, the
 paper's multi-style NeRF, per-frame AdaIN (each NeRF view stylized on its own)."""
 
-import json
 import os
 from typing import List, NamedTuple
 
@@ -13,7 +12,7 @@ from msnerf_jax.core import files
 from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data import video
-from msnerf_jax.data.stylized import MANIFEST, style_name
+from msnerf_jax.data.stylized import read_manifest, style_name
 from msnerf_jax.eval import paths
 from msnerf_jax.kinds.registry import get_kind
 from msnerf_jax.kinds.renderers import style_rendering
@@ -25,15 +24,14 @@ from msnerf_jax.style import vectors as styles_lib
 
 
 class Method(NamedTuple):
-  folder: str  # the stage's run folder under OUT.
-  kind: str
+  kind: str  # the run kind, and the stage's run folder under OUT.
   video: str  # OUT/renders/<video>.mp4/.gif: every style side by side.
   label: str  # the grid's column group.
 
 
-PAINTED = Method("painted", "painted", "painted", "painted (strokes in 3D)")
-FEATURES = Method("features", "features", "features", "feature field (AdaIN in 3D)")
-MULTISTYLE = Method("multistyle", "multistyle", "styles", "multi-style NeRF (paper)")
+PAINTED = Method("painted", "painted", "painted (strokes in 3D)")
+FEATURES = Method("features", "features", "feature field (AdaIN in 3D)")
+MULTISTYLE = Method("multistyle", "styles", "multi-style NeRF (paper)")
 PER_FRAME = "per-frame AdaIN"
 
 
@@ -55,12 +53,11 @@ def render_files(s: Settings) -> List[str]:
   return [n + ext for n in names for ext in (".mp4", ".gif")] + ["grid.png"]
 
 
-def _renderer(out, method: Method, styles, names, s: Settings):
+def _renderer(run, scene, method: Method, styles, names, s: Settings):
   """(render of one camera in K styles given as K vectors -> [K, H, W, 3], {name: vector} of
-  `names`) of one method's run. The feature field paints the style images (cover-cropped as
-  per-frame AdaIN crops them); the others render their own trained styles of those names
-  ("original": the scene's own look)."""
-  run, scene = load_run_and_scene(os.path.join(out, method.folder), method.kind)
+  `names`) of one method's loaded run. The feature field paints the style images
+  (cover-cropped as per-frame AdaIN crops them); the others render their own trained styles
+  of those names ("original": the scene's own look)."""
   table, size, render = style_rendering(run, scene, s.chunk or None)
   cache = {}
   if method is FEATURES:
@@ -73,8 +70,7 @@ def _per_frame_adain(out, decoder_dir, names, poses) -> List[List[np.ndarray]]:
   """[style][view] frames of the NeRF at `poses`, each stylized on its own by the decoder as
   the stylized dataset was (its alpha and scale; "original": the NeRF's frame itself)."""
   nerf, scene = load_run_and_scene(os.path.join(out, "nerf"), "nerf")
-  with open(os.path.join(out, "stylized", MANIFEST)) as f:
-    manifest = json.load(f)
+  manifest = read_manifest(os.path.join(out, "stylized"))
   sources = {x["name"]: x for x in manifest["styles"] if x.get("source")}
   base = paths.nerf_path(scene, nerf.params, nerf.config, poses)
   decoder, encoder = load_decoder(decoder_dir), vgg.load_vgg_params()
@@ -92,11 +88,11 @@ def _per_frame_adain(out, decoder_dir, names, poses) -> List[List[np.ndarray]]:
 def _style_tile(styles, name, scene):
   """The grid's first column: the style picture of `name` cover-cropped to the view's size,
   or, for the original, the first training photo."""
-  paths_ = {style_name(p): p for p in styles}
-  if name not in paths_:
+  by_name = {style_name(p): p for p in styles}
+  if name not in by_name:
     return scene.images[scene.split("train")[0]]
-  return images_lib.cover_crop(images_lib.read_image(paths_[name], max_side=1024), scene.height,
-                               scene.width)
+  return images_lib.cover_crop(images_lib.read_image(by_name[name], max_side=1024),
+                               scene.height, scene.width)
 
 
 def _write_morph(folder, name, render, vectors, poses, s: Settings, progress) -> List[str]:
@@ -110,7 +106,9 @@ def _write_morph(folder, name, render, vectors, poses, s: Settings, progress) ->
 
 def run_renders(out, styles, decoder_dir, s: Settings, progress) -> List[str]:
   """Writes OUT/renders/ (render_files) and grid_rows.txt; returns the files written."""
-  run, scene = load_run_and_scene(os.path.join(out, MULTISTYLE.folder), MULTISTYLE.kind)
+  load = lambda method: load_run_and_scene(os.path.join(out, method.kind), method.kind)
+  paper = load(MULTISTYLE)
+  run, scene = paper
   # The styles of the paper's model, "original" included; every method renders them.
   names = list(get_kind(MULTISTYLE.kind).style_table(run, scene)[0])
   poses = scene.path_poses(s.frames)
@@ -118,12 +116,13 @@ def run_renders(out, styles, decoder_dir, s: Settings, progress) -> List[str]:
   views = np.linspace(0, len(poses), max(1, s.grid_views) + 1)[:-1].round().astype(int)
   columns, written = [], []
   for method in methods(s):
-    render, vectors = _renderer(out, method, styles, names, s)
+    render, vectors = _renderer(*(paper if method is MULTISTYLE else load(method)), method,
+                                styles, names, s)
     if not columns:  # the first method's style morph along the orbit
       written += _write_morph(folder, morph_name(s), render, vectors, poses, s, progress)
     # All styles at once per camera (one pass of the geometry): the side-by-side video.
     sweeps = [render(c2w, list(vectors.values())) for c2w in progress_bar(
-        poses, desc=f"render {method.folder}", disable=not progress)]
+        poses, desc=f"render {method.kind}", disable=not progress)]
     written += video.write_videos(os.path.join(folder, method.video),
                                   [video.grid([sw]) for sw in sweeps], s.fps)
     columns.append([[sweeps[v][m] for v in views] for m in range(len(names))])

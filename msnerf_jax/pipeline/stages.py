@@ -264,7 +264,6 @@ STAGES: Sequence[Stage] = (
     Stage("painted", _painted_key, _trained("painted", lambda c: c.settings.paint_steps),
           _run_painted, _folder("painted"), _painted_off),
     Stage("renders", _renders_key, lambda c: all(map(os.path.exists, _render_outputs(c))),
-          lambda c: renders.run_renders(c.out, c.styles, c.decoder_dir, c.settings,
-                                              c.progress),
+          lambda c: renders.run_renders(c.out, c.styles, c.decoder_dir, c.settings, c.progress),
           _render_outputs),
 )
