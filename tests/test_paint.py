@@ -25,6 +25,7 @@ from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.train import nerf, paint, paint_data
+from msnerf_jax.train.paint_coverage import dense_vertices, nearest_seen, seen_vertices
 
 from conftest import write_blender_scene
 from test_fast_trunk import TINY_FAST
@@ -330,6 +331,36 @@ def test_a_cache_from_another_nerf_run_is_refused(paint_world, tmp_path, capsys)
                                                       if n != "trainer.lock"}
 
 
+# ----------------------------------------------------------------------------- coverage
+
+
+def test_unseen_vertices_map_to_the_nearest_seen_one():
+  index = np.full((5, 5, 5), 4, np.int32)  # four painted vertices in a row, V = 4
+  index[0, 0, 0], index[0, 0, 1], index[0, 0, 3], index[0, 0, 4] = 0, 1, 2, 3
+  seen = np.array([True, False, False, True, False])
+  np.testing.assert_array_equal(nearest_seen(index, seen), [0, 0, 3, 3, 4])
+  np.testing.assert_array_equal(nearest_seen(index, np.zeros(5, bool)), np.arange(5))
+
+
+def test_a_painting_covers_the_dense_nerf_and_leaves_no_unseen_vertex_grey(paint_world):
+  run = msnerf_jax.load_run(paint_world["run"])
+  nerf_run = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  cache = paint_data.read_cache(os.path.join(paint_world["run"], paint_data.CACHE_FILE),
+                                paint_data.cache_source(nerf_run))
+  index = np.asarray(run.params["paint"]["index"])
+  colours = np.asarray(run.params["paint"]["colours"])
+  count, box = colours.shape[1] - 1, run.config.scene_box
+  dense = dense_vertices(nerf_run.params, nerf_run.config, index.shape[0], box)
+  assert dense.any() and np.all(index[dense] < count)  # every dense vertex is painted
+  seen = seen_vertices(cache, index, count, box)
+  unseen = np.nonzero(~seen[:-1])[0]
+  assert 0 < len(unseen) < count  # the tiny NeRF is dense where no training view looks
+  source = nearest_seen(index, seen)
+  assert seen[source[unseen]].all()
+  np.testing.assert_array_equal(colours[:, unseen], colours[:, source[unseen]])
+  assert np.abs(colours[:, unseen]).max() > 0.1  # not the grey they start from
+
+
 # ----------------------------------------------------------------------------- a new style
 
 
@@ -379,6 +410,32 @@ def test_a_new_style_joins_the_run_and_leaves_the_others_bit_identical(paint_wor
   assert list(table) == ["red", "blue", "green", "original"]
   assert render(0, [table["green"]]).shape == (1, 24, 24, 3)
   assert painted_kind.style_images(after).shape[0] == 3
+
+
+def test_key_views_of_a_white_background_scene_take_the_styles_colours_on_the_object(
+    paint_world, tmp_path):
+  # pylint: disable=g-import-not-at-top
+  from conftest import fake_decoder
+  from msnerf_jax.kinds.stylized_scenes import load_decoder
+  from msnerf_jax.models import vgg
+  from msnerf_jax.style.transfer import stylize_image
+  from msnerf_jax.train.paint_add import stylized_key_views
+  scene = paint_world["scene"]
+  assert scene.white_background and scene.alphas is not None
+  picture = paint_data.read_styles([write_style(tmp_path / "g.png", (40, 200, 40))], 32)[0]
+  train, encoder = scene.split("train"), vgg.load_vgg_params()
+  decoder = load_decoder(fake_decoder(tmp_path / "decoder"))
+  views = stylized_key_views(scene, train, [0, 2], picture, decoder, encoder, 1)
+  target = picture.reshape(-1, 3).mean(0)
+  for view, out in zip([0, 2], views):
+    alpha = scene.alphas[train[view]].astype(np.float32) / 255.0
+    mean_of = lambda x: (x * alpha[..., None]).reshape(-1, 3).sum(0) / alpha.sum()
+    plain = stylize_image(decoder, encoder, scene.images[train[view]], [picture])
+    # The untrained decoder's output is nearly flat in two channels: the map stretches it and
+    # clipping to [0, 1] keeps the mean from landing exactly; it comes 2x closer or more.
+    assert (np.linalg.norm(mean_of(out) - target)
+            < np.linalg.norm(mean_of(plain) - target) / 2)
+    np.testing.assert_allclose(out[alpha == 0], 1.0)  # the background stays white
 
 
 @pytest.mark.parametrize("bad", ["range", "same name"])
@@ -437,7 +494,8 @@ def test_a_crop_renders_from_its_rows_samples_as_the_whole_view_cropped(paint_wo
   cache = paint_data.read_cache(os.path.join(paint_world["run"], paint_data.CACHE_FILE),
                            paint_data.cache_source(nerf_run))
   styles = painted_kind.style_images(run)
-  consts = paint_data.constants(scene, cache, styles, config)
+  identity = np.arange(run.params["paint"]["colours"].shape[1])
+  consts = paint_data.constants(scene, cache, styles, config, identity)
   band = consts.pop("band")
   batch = {"view": jnp.array([0, 3, 1]), "style": jnp.array([1, 0, 1]),
            "top": jnp.array([0, 8, 5]), "left": jnp.array([8, 0, 3])}

@@ -4,7 +4,10 @@ pairs rendered from the cache (a gather and a segment sum: no trunk evaluation),
 first to the photos colour-transferred to the style (MSE), then with a style loss on the
 whole rendered views (style.painting_loss: NNFM or AdaIN statistics, content, total
 variation); Adam on the colour grids alone. No per-view pixel target is used after the
-first init_steps, so views cannot disagree: one 3D texture serves them all."""
+first init_steps, so views cannot disagree: one 3D texture serves them all. The grids cover
+where the NeRF is dense too, and after every step the vertices no training view sees take
+the colour of the nearest one that is seen (train/paint_coverage.py): a render path that
+leaves the photos' sight finds painted colours there, not grey."""
 
 import dataclasses
 import functools
@@ -28,9 +31,9 @@ from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import apply_colour_map
 from msnerf_jax.train import loop as loop_lib
-from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, index_of,
-                                         load_or_build_cache, read_cache, read_styles,
-                                         style_name)
+from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, fill_map,
+                                         index_of, load_or_build_cache, read_cache,
+                                         read_styles, style_name)
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -155,9 +158,10 @@ def loss_fn(colours, index, batch, consts, config: PaintConfig, white_background
 def train_step(state: state_lib.TrainState, batch, consts, *, config: PaintConfig,
                white_background: bool, init: bool, band: int = 0,
                axis_name: Optional[str] = None):
-  """One Adam step on the colours; the NeRF and the index come out bit-identical (passed
-  through). The devices' gradients are summed (each holds other pairs: loss_fn's sum), so
-  a step does not depend on how the pairs are split."""
+  """One Adam step on the colours, then every vertex the training views do not see takes
+  the colour of the nearest one they see (consts["fill"]); the NeRF and the index come out
+  bit-identical (passed through). The devices' gradients are summed (each holds other
+  pairs: loss_fn's sum), so a step does not depend on how the pairs are split."""
   params = state.params
   paint = params[TRAINED]
   grads, stats = jax.grad(loss_fn, has_aux=True)(paint["colours"], paint["index"], batch,
@@ -168,7 +172,8 @@ def train_step(state: state_lib.TrainState, batch, consts, *, config: PaintConfi
   zeros = jax.tree_util.tree_map(jnp.zeros_like, params[FROZEN])
   state = state.apply_gradients(grads={FROZEN: zeros, TRAINED: {
       "colours": grads, "index": jnp.zeros_like(paint["index"])}})
-  trained = {"colours": state.params[TRAINED]["colours"], "index": paint["index"]}
+  trained = {"colours": state.params[TRAINED]["colours"][:, consts["fill"]],
+             "index": paint["index"]}
   return state.replace(params={FROZEN: params[FROZEN], TRAINED: trained}), stats
 
 
@@ -255,8 +260,8 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
     holder.append(load_or_build_cache(run_dir, scene, nerf_run, config, progress))
   distributed.primary_first(prepare)
   cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
-  consts = constants(scene, cache, styles, config)
-  index, count = index_of(cache, config)
+  index, count = index_of(cache, config, nerf_run)
+  consts = constants(scene, cache, styles, config, fill_map(cache, index, count, box))
   n_views = len(scene.split("train"))
   summary = loop_lib.fit(
       init_state(config, nerf_run.params, len(names), index, count),

@@ -22,9 +22,9 @@ from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.kinds.painted import save_style_images, style_images
 from msnerf_jax.kinds.stylized_scenes import load_decoder
 from msnerf_jax.models import vgg
-from msnerf_jax.models.painted_field import corners
-from msnerf_jax.style.transfer import stylize_image
+from msnerf_jax.style.transfer import apply_colour_map, colour_map, stylize_image
 from msnerf_jax.train import paint, paint_data
+from msnerf_jax.train.paint_coverage import view_spread
 
 
 def key_views(c2w: np.ndarray, count: int) -> np.ndarray:
@@ -54,12 +54,8 @@ def lift_key_views(cache, views: Sequence[int], pictures: np.ndarray, index: np.
   best = np.zeros(rows_count)
   colours = np.full((rows_count, 3), 0.5)
   for view, picture in zip(views, pictures):
-    weights, points = cache["weights"][view], cache["points"][view]
-    keep = weights > 0
-    flat, tri = corners(points[keep].astype(np.float32), index.shape[0], bound, np)
-    rows = index.reshape(-1)[flat].reshape(-1)
-    spread = (weights[keep][:, None] * tri).reshape(-1)
-    colour = np.repeat(picture[cache["pixel"][view][keep]], 8, axis=0)
+    rows, spread, pixel = view_spread(cache, view, index, bound)
+    colour = picture[pixel]
     total = np.bincount(rows, spread, rows_count)
     sums = np.stack([np.bincount(rows, spread * colour[:, c], rows_count) for c in range(3)], -1)
     better = total > best
@@ -148,38 +144,46 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
   nerf_run = runs_lib.load_run(run.record["nerf_run"], "nerf")
   cache = paint_data.load_or_build_cache(run_dir, scene, nerf_run, config, progress)
   encoder = vgg.load_vgg_params()
-  full = _stylized_key_views(scene, train, views, picture, decoder, encoder, scale)
+  full = stylized_key_views(scene, train, views, picture, decoder, encoder, scale)
   index = np.asarray(run.params["paint"]["index"])
-  lifted = lift_key_views(cache, views, full.reshape(len(views), -1, 3), index,
-                          run.params["paint"]["colours"].shape[1] - 1, config.scene_box)
-  colours = fill_from_neighbours(lifted["colours"], lifted["seen"], index)
-  polished = _polish(run, scene, cache, name, picture, _logit(colours), polish_steps, progress)
+  count = run.params["paint"]["colours"].shape[1] - 1
+  lifted = lift_key_views(cache, views, full.reshape(len(views), -1, 3), index, count,
+                          config.scene_box)
+  fill = paint_data.fill_map(cache, index, count, config.scene_box)
+  colours = fill_from_neighbours(lifted["colours"], lifted["seen"], index)[fill]
+  polished = _polish(run, scene, cache, name, picture, _logit(colours), fill, polish_steps,
+                     progress)
   step = _append_style(run_dir, run, name, style_path, picture, polished)
   return {"style": name, "views": [int(v) for v in views],
           "seen": float(lifted["seen"][:-1].mean()), "seconds": time.time() - t0, "step": step}
 
 
-def _stylized_key_views(scene, train, views, picture, decoder, encoder, scale):
-  """[K, H, W, 3] the key views stylized by per-frame AdaIN (over white where the scene's
-  background is white, by the photos' alpha)."""
+def stylized_key_views(scene, train, views, picture, decoder, encoder, scale):
+  """[K, H, W, 3] the key views stylized by per-frame AdaIN. Where the scene's background is
+  white (by the photos' alpha): the object's colours are moved to the style's mean and
+  covariance (AdaIN's statistics count the white background, which takes the style's light
+  colours and leaves the object its darkest), then put back over white."""
   out = []
   for v in views:
     photo = scene.images[train[v]]
     styled = stylize_image(decoder, encoder, photo, [picture], scale=scale)
     if scene.white_background and scene.alphas is not None:
-      alpha = scene.alphas[train[v]].astype(np.float32)[..., None] / 255.0
-      styled = styled * alpha + (1.0 - alpha)
+      alpha = scene.alphas[train[v]].astype(np.float32) / 255.0
+      styled = np.asarray(apply_colour_map(styled, *colour_map(
+          jnp.asarray(styled), jnp.asarray(picture), source_weights=jnp.asarray(alpha))))
+      styled = styled * alpha[..., None] + (1.0 - alpha[..., None])
     out.append(styled)
   return np.stack(out)
 
 
-def _polish(run, scene, cache, name, picture, start, steps, progress) -> np.ndarray:
+def _polish(run, scene, cache, name, picture, start, fill, steps, progress) -> np.ndarray:
   """The new style's colour logits [V + 1, 3] after `steps` Adam steps of the style loss on
-  random training views (the run's loss settings), starting from `start`."""
+  random training views (the run's loss settings), starting from `start` (`fill`: the
+  run's fill_map)."""
   if steps == 0:
     return start
   config = dataclasses.replace(run.config, init_steps=0, views_per_style=1)
-  consts = paint_data.constants(scene, cache, picture[None], config)
+  consts = paint_data.constants(scene, cache, picture[None], config, fill)
   index = np.asarray(run.params["paint"]["index"])
   state = paint.init_state(config, run.params["nerf"], 1, index, len(start) - 1)
   state = state.replace(params={**state.params, paint.TRAINED: {

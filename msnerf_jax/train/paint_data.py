@@ -20,6 +20,7 @@ from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
+from msnerf_jax.train.paint_coverage import dense_vertices, nearest_seen, seen_vertices
 from msnerf_jax.style.transfer import colour_map
 
 CACHE_FILE = "sample_cache.npz"
@@ -120,21 +121,31 @@ def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, prog
   return cache
 
 
-def index_of(cache, config: PaintConfig):
+def index_of(cache, config: PaintConfig, nerf_run):
   """(index, V) of the painted vertices: those around every cached sample that carries
-  weight, grown by one vertex (painted_field.paint_index)."""
+  weight and those where the NeRF is dense (paint_coverage.dense_vertices), grown by one
+  vertex (painted_field.paint_index)."""
+  dense = dense_vertices(nerf_run.params, nerf_run.config, config.resolution, config.scene_box)
   return paint_index((p[w > 0] for p, w in zip(cache["points"], cache["weights"])),
-                     config.resolution, config.scene_box)
+                     config.resolution, config.scene_box, extra=dense)
 
 
-def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, Any]:
+def fill_map(cache, index: np.ndarray, count: int, bound: float) -> np.ndarray:
+  """int32 [V + 1]: where each painted vertex takes its colour from after a step: itself
+  when the training views see it, else the nearest vertex they see
+  (paint_coverage.nearest_seen)."""
+  return nearest_seen(index, seen_vertices(cache, index, count, bound))
+
+
+def constants(scene, cache, styles: np.ndarray, config: PaintConfig, fill: np.ndarray
+              ) -> Dict[str, Any]:
   """What every step reads and no step changes (placed on the devices once), for the
   scene's training views and the style images: "cache" (the packed sample lists of the N
   training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (each style's
   colour map: "transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]), "targets"
-  (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params) and "background"
-  [3]; with config.crop also "row_start" and "band" (row_starts; the band is taken out by
-  compile_train_step, a static size)."""
+  (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params), "background" [3]
+  and "fill" [V + 1] (fill_map); with config.crop also "row_start" and "band" (row_starts;
+  the band is taken out by compile_train_step, a static size)."""
   encoder = vgg.load_vgg_params()
   photos = np.asarray(scene.images[scene.split("train")], np.float32)
   # On white-background scenes the map moves the scene's colours, not the background's: the
@@ -154,7 +165,7 @@ def constants(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str
       **crops,
       cache={k: jnp.asarray(v) for k, v in cache.items()}, photos=jnp.asarray(photos),
       maps=dict(zip(("transform", "mu_s", "mu_t"), stack([tuple(m) for m in maps]))),
-      targets=stack(targets), encoder=encoder,
+      targets=stack(targets), encoder=encoder, fill=jnp.asarray(fill, jnp.int32),
       background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
 
 
