@@ -360,7 +360,6 @@ def test_real_captures_load_with_their_layout():
 
 
 def test_camera_path_files_round_trip(tmp_path):
-  rng = np.random.default_rng(8)
   poses = np.stack(orbit_poses(5)).astype(np.float32)
   K = cameras.intrinsics(30.0, 30.0, W / 2 - 0.5, H / 2 - 0.5)
   path = str(tmp_path / "camera_path.json")

@@ -29,7 +29,6 @@ def worker(args):
     distributed.initialize(f"127.0.0.1:{args.port}", args.processes, args.process_id, 120)
   import jax
   import jax.numpy as jnp
-  import numpy as np
   from msnerf_jax.core import parallel
   from msnerf_jax.core.config import DataConfig, nerf_preset
   from msnerf_jax.data.scene import load_scene
