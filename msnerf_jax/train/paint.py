@@ -21,6 +21,7 @@ import numpy as np
 
 from msnerf_jax.core import config as config_lib
 from msnerf_jax.core import distributed, run_lock
+from msnerf_jax.core.checkpoint import Checkpoints
 from msnerf_jax.core.config import PaintConfig
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.parallel import DataParallel, data_parallel
@@ -232,6 +233,19 @@ def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, sce
 # ----------------------------------------------------------------------------- the loop
 
 
+def painted_vertices(run_dir: str, cache, config: PaintConfig, nerf_run) -> Tuple[np.ndarray, int]:
+  """(index, V) of the run: its checkpoint's when it has one (a resumed run keeps the
+  vertices it was painted on, whichever version chose them), else paint_data.index_of."""
+  checkpoints = Checkpoints(run_dir)
+  try:
+    if checkpoints.latest_step() is not None:
+      paint = checkpoints.restore()["params"][TRAINED]
+      return np.asarray(paint["index"]), int(paint["colours"].shape[1]) - 1
+  finally:
+    checkpoints.close()
+  return index_of(cache, config, nerf_run)
+
+
 @run_lock.released_after
 def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], run_dir: str,
           n_devices: Optional[int] = None, progress: bool = True,
@@ -260,7 +274,7 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
     holder.append(load_or_build_cache(run_dir, scene, nerf_run, config, progress))
   distributed.primary_first(prepare)
   cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
-  index, count = index_of(cache, config, nerf_run)
+  index, count = painted_vertices(run_dir, cache, config, nerf_run)
   consts = constants(scene, cache, styles, config, fill_map(cache, index, count, box))
   n_views = len(scene.split("train"))
   summary = loop_lib.fit(
