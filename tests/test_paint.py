@@ -20,12 +20,12 @@ from msnerf_jax.data.scene import load_scene
 from msnerf_jax.kinds import painted as painted_kind
 from msnerf_jax.kinds.renderers import style_rendering
 from msnerf_jax.models.nerf import NerfField
-from msnerf_jax.models.painted_field import PaintedField, trilinear
+from msnerf_jax.models.painted_field import PaintedField, corners, trilinear
 from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.train import nerf, paint, paint_data
-from msnerf_jax.train.paint_coverage import dense_vertices, nearest_seen, seen_vertices
+from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
 
 from conftest import write_blender_scene
 from test_fast_trunk import TINY_FAST
@@ -342,7 +342,7 @@ def test_unseen_vertices_map_to_the_nearest_seen_one():
   np.testing.assert_array_equal(nearest_seen(index, np.zeros(5, bool)), np.arange(5))
 
 
-def test_a_painting_covers_the_dense_nerf_and_leaves_no_unseen_vertex_grey(paint_world):
+def test_a_painting_covers_its_camera_path_and_leaves_no_unseen_vertex_grey(paint_world):
   run = msnerf_jax.load_run(paint_world["run"])
   nerf_run = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
   cache = paint_data.read_cache(os.path.join(paint_world["run"], paint_data.CACHE_FILE),
@@ -350,11 +350,12 @@ def test_a_painting_covers_the_dense_nerf_and_leaves_no_unseen_vertex_grey(paint
   index = np.asarray(run.params["paint"]["index"])
   colours = np.asarray(run.params["paint"]["colours"])
   count, box = colours.shape[1] - 1, run.config.scene_box
-  dense = dense_vertices(nerf_run.params, nerf_run.config, index.shape[0], box)
-  assert dense.any() and np.all(index[dense] < count)  # every dense vertex is painted
+  for points in path_points(paint_world["scene"], nerf_run, run.config.top_k,
+                            run.config.cache_threshold):
+    assert np.all(index.reshape(-1)[corners(points, index.shape[0], box, np)[0]] < count)
   seen = seen_vertices(cache, index, count, box)
   unseen = np.nonzero(~seen[:-1])[0]
-  assert 0 < len(unseen) < count  # the tiny NeRF is dense where no training view looks
+  assert 0 < len(unseen) < count  # the path sees what the 4 training views do not
   source = nearest_seen(index, seen)
   assert seen[source[unseen]].all()
   np.testing.assert_array_equal(colours[:, unseen], colours[:, source[unseen]])

@@ -12,7 +12,7 @@ row (unpainted). params {"colours": [M, V + 1, 3] logits (the colour is their si
 """
 
 import dataclasses
-from typing import Dict, Iterable, Optional, Tuple
+from typing import Dict, Iterable, Tuple
 
 import chex
 import jax
@@ -52,18 +52,15 @@ def trilinear(table: jnp.ndarray, index: jnp.ndarray, points: jnp.ndarray, bound
 
 
 def paint_index(point_sets: Iterable[np.ndarray], resolution: int, bound: float,
-                margin: int = 1, extra: Optional[np.ndarray] = None) -> Tuple[np.ndarray, int]:
+                margin: int = 1) -> Tuple[np.ndarray, int]:
   """(index [R, R, R] int32, V): the vertices around the points of every set (e.g. each
-  training view's cached samples, [P, 3]) and the `extra` ones (bool [R, R, R], e.g. where
-  the NeRF is dense), grown by `margin` vertices in every direction, numbered 0..V-1 in
-  raster order; every other vertex is V (unpainted)."""
+  training view's cached samples, [P, 3]), grown by `margin` vertices in every direction,
+  numbered 0..V-1 in raster order; every other vertex is V (unpainted)."""
   r = resolution
   painted = np.zeros(r ** 3, bool)
   for points in point_sets:
     painted[corners(np.asarray(points, np.float32), r, bound, np)[0].reshape(-1)] = True
   painted = painted.reshape(r, r, r)
-  if extra is not None:
-    painted |= extra
   grown = painted
   for axis in range(3):
     for _ in range(margin):

@@ -5,9 +5,9 @@ first to the photos colour-transferred to the style (MSE), then with a style los
 whole rendered views (style.painting_loss: NNFM or AdaIN statistics, content, total
 variation); Adam on the colour grids alone. No per-view pixel target is used after the
 first init_steps, so views cannot disagree: one 3D texture serves them all. The grids cover
-where the NeRF is dense too, and after every step the vertices no training view sees take
-the colour of the nearest one that is seen (train/paint_coverage.py): a render path that
-leaves the photos' sight finds painted colours there, not grey."""
+what the scene's camera path sees too, and after every step the vertices no training view
+sees take the colour of the nearest one that is seen (train/paint_coverage.py): a render
+path that leaves the photos' sight finds painted colours there, not grey."""
 
 import dataclasses
 import functools
@@ -233,7 +233,8 @@ def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, sce
 # ----------------------------------------------------------------------------- the loop
 
 
-def painted_vertices(run_dir: str, cache, config: PaintConfig, nerf_run) -> Tuple[np.ndarray, int]:
+def painted_vertices(run_dir: str, cache, config: PaintConfig, scene, nerf_run
+                     ) -> Tuple[np.ndarray, int]:
   """(index, V) of the run: its checkpoint's when it has one (a resumed run keeps the
   vertices it was painted on, whichever version chose them), else paint_data.index_of."""
   checkpoints = Checkpoints(run_dir)
@@ -243,7 +244,7 @@ def painted_vertices(run_dir: str, cache, config: PaintConfig, nerf_run) -> Tupl
       return np.asarray(paint["index"]), int(paint["colours"].shape[1]) - 1
   finally:
     checkpoints.close()
-  return index_of(cache, config, nerf_run)
+  return index_of(cache, config, scene, nerf_run)
 
 
 @run_lock.released_after
@@ -274,7 +275,7 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
     holder.append(load_or_build_cache(run_dir, scene, nerf_run, config, progress))
   distributed.primary_first(prepare)
   cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
-  index, count = painted_vertices(run_dir, cache, config, nerf_run)
+  index, count = painted_vertices(run_dir, cache, config, scene, nerf_run)
   consts = constants(scene, cache, styles, config, fill_map(cache, index, count, box))
   n_views = len(scene.split("train"))
   summary = loop_lib.fit(

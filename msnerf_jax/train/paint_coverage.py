@@ -1,48 +1,37 @@
-"""Where a painting's colours reach: which grid vertices the NeRF's density occupies (they
-are painted even where no training view looks: a render path may go there), how much each
-painted vertex weighs in the training views (the ones that weigh nothing get no gradient
-from any view), and, for those, the seen vertex they take their colour from (the nearest:
-a gather map the trainer applies after every step, so a painting has no grey holes)."""
+"""Where a painting's colours reach: the grid vertices that a render along the scene's
+camera path sees (they are painted even where no training view looks: the path may go
+there), how much each painted vertex weighs in the training views (the ones that weigh
+nothing get no gradient from any view), and, for those, the seen vertex they take their
+colour from (the nearest: a gather map the trainer applies after every step, so a painting
+has no grey holes where the path looks).
 
-from typing import Dict, Optional, Sequence, Tuple
+Density alone does not say where to paint: a NeRF of a capture that photographs one side of
+an object fills the box with thin fog (on the cup capture 94% of a 128^3 grid stops 1% of
+the light over a vertex spacing), while a render sees only the first surfaces along its
+rays; those are what the path's sample lists hold."""
 
-import jax
-import jax.numpy as jnp
+from typing import Dict, Iterator, Optional, Sequence, Tuple
+
 import numpy as np
 from scipy import ndimage
 
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import corners
-from msnerf_jax.nerf import occupancy
+from msnerf_jax.nerf import sample_cache
 
-DENSE_ALPHA = 0.01  # a vertex is dense when its density stops this much light in one spacing.
+PATH_VIEWS = 24  # cameras along the render path whose samples are painted.
 SEEN_WEIGHT = 1e-3  # a vertex is seen when its summed weight in the training views is above.
 
 
-def vertex_positions(resolution: int, bound: float) -> np.ndarray:
-  """[R^3, 3] float32: the grid's vertices over [-bound, bound]^3 in raster (x, y, z) order
-  (painted_field.corners' numbering)."""
-  axis = np.linspace(-bound, bound, resolution, dtype=np.float32)
-  return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-
-
-def dense_vertices(nerf_params, nerf_config, resolution: int, bound: float,
-                   chunk: int = 1 << 16) -> np.ndarray:
-  """bool [R, R, R]: the vertices where the NeRF's density (its fine network's) stops at
-  least DENSE_ALPHA of the light over one vertex spacing, and, for an occupancy-grid NeRF,
-  that lie in a cell its sampler marches."""
-  points = vertex_positions(resolution, bound)
-  field = NerfField(nerf_config)
-  density = jax.jit(lambda p, x: field.geometry(p, x)[0])
-  fine = jax.device_put(nerf_params["fine"])
-  sigma = np.concatenate([np.asarray(density(fine, jnp.asarray(points[i:i + chunk])))
-                          for i in range(0, len(points), chunk)])
-  spacing = 2.0 * bound / (resolution - 1)
-  dense = 1.0 - np.exp(-sigma * spacing) >= DENSE_ALPHA
-  if "occupancy" in nerf_params:
-    cells = occupancy.occupied(jnp.asarray(nerf_params["occupancy"]), nerf_config.grid_threshold)
-    dense &= np.asarray(occupancy.lookup(cells, jnp.asarray(points), nerf_config.scene_box))
-  return dense.reshape((resolution,) * 3)
+def path_points(scene, nerf_run, top_k: int, threshold: float, views: int = PATH_VIEWS
+                ) -> Iterator[np.ndarray]:
+  """The points [P, 3] of each of `views` cameras spread along the scene's render path that
+  carry weight above `threshold` in its render by the frozen NeRF (sample_cache.view_samples,
+  as the training views' cache keeps them)."""
+  field = NerfField(nerf_run.config)
+  for c2w in scene.path_poses(views):
+    yield sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(c2w),
+                                    nerf_run.config, top_k, threshold)["points"]
 
 
 def view_spread(cache: Dict[str, np.ndarray], view: int, index: np.ndarray, bound: float

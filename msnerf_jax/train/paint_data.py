@@ -3,6 +3,7 @@ cached from the frozen NeRF (RUN/sample_cache.npz, stamped with the NeRF run it 
 from), the painted vertices, where each row's samples start (for crops), and the constants
 every step reads."""
 
+import itertools
 import os
 from typing import Any, Dict, Optional, Sequence
 
@@ -20,7 +21,7 @@ from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.train.paint_coverage import dense_vertices, nearest_seen, seen_vertices
+from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
 from msnerf_jax.style.transfer import colour_map
 
 CACHE_FILE = "sample_cache.npz"
@@ -121,13 +122,13 @@ def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, prog
   return cache
 
 
-def index_of(cache, config: PaintConfig, nerf_run):
+def index_of(cache, config: PaintConfig, scene, nerf_run):
   """(index, V) of the painted vertices: those around every cached sample that carries
-  weight and those where the NeRF is dense (paint_coverage.dense_vertices), grown by one
-  vertex (painted_field.paint_index)."""
-  dense = dense_vertices(nerf_run.params, nerf_run.config, config.resolution, config.scene_box)
-  return paint_index((p[w > 0] for p, w in zip(cache["points"], cache["weights"])),
-                     config.resolution, config.scene_box, extra=dense)
+  weight and around every sample a render along the scene's camera path keeps
+  (paint_coverage.path_points), grown by one vertex (painted_field.paint_index)."""
+  training = (p[w > 0] for p, w in zip(cache["points"], cache["weights"]))
+  path = path_points(scene, nerf_run, config.top_k, config.cache_threshold)
+  return paint_index(itertools.chain(training, path), config.resolution, config.scene_box)
 
 
 def fill_map(cache, index: np.ndarray, count: int, bound: float) -> np.ndarray:
