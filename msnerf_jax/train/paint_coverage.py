@@ -10,7 +10,7 @@ an object fills the box with thin fog (on the cup capture 94% of a 128^3 grid st
 the light over a vertex spacing), while a render sees only the first surfaces along its
 rays; those are what the path's sample lists hold."""
 
-from typing import Dict, Iterator, Optional, Sequence, Tuple
+from typing import Dict, Iterator, Tuple
 
 import numpy as np
 from scipy import ndimage
@@ -47,12 +47,12 @@ def view_spread(cache: Dict[str, np.ndarray], view: int, index: np.ndarray, boun
   return rows, spread, np.repeat(cache["pixel"][view][keep], 8)
 
 
-def seen_vertices(cache: Dict[str, np.ndarray], index: np.ndarray, count: int, bound: float,
-                  views: Optional[Sequence[int]] = None) -> np.ndarray:
-  """bool [V + 1]: the painted vertices whose summed weight in the cached views (all, or
-  `views`) is above SEEN_WEIGHT (row V, unpainted, never)."""
+def seen_vertices(cache: Dict[str, np.ndarray], index: np.ndarray, count: int, bound: float
+                  ) -> np.ndarray:
+  """bool [V + 1]: the painted vertices whose summed weight in all the cached views is above
+  SEEN_WEIGHT (row V, unpainted, never)."""
   total = np.zeros(count + 1)
-  for view in range(len(cache["weights"])) if views is None else views:
+  for view in range(len(cache["weights"])):
     rows, spread, _ = view_spread(cache, view, index, bound)
     total += np.bincount(rows, spread, count + 1)
   seen = total > SEEN_WEIGHT
@@ -70,7 +70,7 @@ def nearest_seen(index: np.ndarray, seen: np.ndarray) -> np.ndarray:
   rows = index.reshape(-1)
   grid_seen = (rows < len(seen) - 1) & seen[rows]
   nearest = ndimage.distance_transform_edt(~grid_seen.reshape(index.shape),
-                                              return_distances=False, return_indices=True)
+                                           return_distances=False, return_indices=True)
   nearest_rows = index[tuple(nearest)].reshape(-1)
   unseen = (rows < len(seen) - 1) & ~seen[rows]
   source[rows[unseen]] = nearest_rows[unseen]

@@ -21,8 +21,8 @@ from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
 from msnerf_jax.style.transfer import colour_map
+from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
 
 CACHE_FILE = "sample_cache.npz"
 
