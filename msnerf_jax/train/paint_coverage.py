@@ -10,7 +10,7 @@ an object fills the box with thin fog (on the cup capture 94% of a 128^3 grid st
 the light over a vertex spacing), while a render sees only the first surfaces along its
 rays; those are what the path's sample lists hold."""
 
-from typing import Dict, Iterator, Tuple
+from typing import Dict, Iterable, Iterator, Tuple
 
 import numpy as np
 from scipy import ndimage
@@ -23,15 +23,23 @@ PATH_VIEWS = 24  # cameras along the render path whose samples are painted.
 SEEN_WEIGHT = 1e-3  # a vertex is seen when its summed weight in the training views is above.
 
 
+def camera_samples(scene, nerf_run, cameras: Iterable, top_k: int, threshold: float
+                   ) -> Iterator[Dict[str, np.ndarray]]:
+  """The frozen NeRF's sample lists of each camera (a training view's index or a c2w) of the
+  scene: sample_cache.view_samples, the samples of weight above `threshold`."""
+  field = NerfField(nerf_run.config)
+  for camera in cameras:
+    yield sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(camera),
+                                    nerf_run.config, top_k, threshold)
+
+
 def path_points(scene, nerf_run, top_k: int, threshold: float, views: int = PATH_VIEWS
                 ) -> Iterator[np.ndarray]:
   """The points [P, 3] of each of `views` cameras spread along the scene's render path that
-  carry weight above `threshold` in its render by the frozen NeRF (sample_cache.view_samples,
-  as the training views' cache keeps them)."""
-  field = NerfField(nerf_run.config)
-  for c2w in scene.path_poses(views):
-    yield sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(c2w),
-                                    nerf_run.config, top_k, threshold)["points"]
+  carry weight above `threshold` in its render by the frozen NeRF (camera_samples, as the
+  training views' cache keeps them)."""
+  for samples in camera_samples(scene, nerf_run, scene.path_poses(views), top_k, threshold):
+    yield samples["points"]
 
 
 def view_spread(cache: Dict[str, np.ndarray], view: int, index: np.ndarray, bound: float

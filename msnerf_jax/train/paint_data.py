@@ -17,12 +17,12 @@ from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.progress import progress_bar
 from msnerf_jax.data.images import cover_crop, file_problem, read_style_image
 from msnerf_jax.models import vgg
-from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import colour_map
-from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
+from msnerf_jax.train.paint_coverage import (camera_samples, nearest_seen, path_points,
+                                             seen_vertices)
 
 CACHE_FILE = "sample_cache.npz"
 
@@ -46,12 +46,10 @@ def read_styles(paths: Sequence[str], size: int) -> np.ndarray:
 
 def build_cache(scene, nerf_run, config: PaintConfig, progress: bool) -> Dict[str, np.ndarray]:
   """The packed sample lists of the scene's training views (sample_cache.view_samples)."""
-  field = NerfField(nerf_run.config)
-  views = [sample_cache.view_samples(field, nerf_run.params, scene.camera_rays(int(i)),
-                                     nerf_run.config, config.top_k, config.cache_threshold)
-           for i in progress_bar(scene.split("train"), desc="caching samples",
-                                 disable=not progress, leave=False)]
-  return sample_cache.pack_views(views)
+  cameras = progress_bar([int(i) for i in scene.split("train")], desc="caching samples",
+                         disable=not progress, leave=False)
+  return sample_cache.pack_views(list(camera_samples(scene, nerf_run, cameras, config.top_k,
+                                                     config.cache_threshold)))
 
 
 def read_cache(path: str, made_from: str) -> Optional[Dict[str, np.ndarray]]:
