@@ -24,7 +24,7 @@ from msnerf_jax.models.painted_field import PaintedField, corners, trilinear
 from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.train import nerf, paint, paint_data
+from msnerf_jax.train import nerf, paint, paint_data, paint_grid
 from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
 
 from conftest import write_blender_scene
@@ -362,6 +362,91 @@ def test_a_painting_covers_its_camera_path_and_leaves_no_unseen_vertex_grey(pain
   assert np.abs(colours[:, unseen]).max() > 0.1  # not the grey they start from
 
 
+def test_a_painting_starts_at_the_weighted_mean_of_the_photo_colours_moved_to_each_style():
+  index = np.arange(8, dtype=np.int32).reshape(2, 2, 2)  # one cell, 8 painted vertices
+  point = np.zeros((1, 3), np.float32)  # the cell's centre: 1/8 to each vertex
+  cache = {"points": np.stack([point, point]), "weights": np.array([[0.9], [0.3]], np.float32),
+           "pixel": np.zeros((2, 1), np.int32)}
+  photos = np.array([[1.0, 0.2, 0.0], [0.0, 0.2, 1.0]], np.float32).reshape(2, 1, 1, 3)
+  swap = jnp.eye(3)[::-1]  # style 1 swaps red and blue
+  maps = {"transform": jnp.stack([jnp.eye(3), swap]), "mu_s": jnp.zeros((2, 3)),
+          "mu_t": jnp.zeros((2, 3))}
+  fill, logits = paint_data.starting_colours(cache, photos, maps, index, 8, 1.0)
+  np.testing.assert_array_equal(fill, np.arange(9))
+  mean = np.array([0.75, 0.2, 0.25])  # 0.9 : 0.3 of the two views' pixel colours
+  np.testing.assert_allclose(jax.nn.sigmoid(logits[0, :8]), np.tile(mean, (8, 1)), atol=1e-5)
+  np.testing.assert_allclose(jax.nn.sigmoid(logits[1, :8]), np.tile(mean[::-1], (8, 1)),
+                             atol=1e-5)
+  np.testing.assert_array_equal(logits[:, 8], 0.0)  # the unpainted row stays grey
+
+
+def test_a_paintings_start_reproduces_the_colour_transferred_photos(paint_world):
+  run = msnerf_jax.load_run(paint_world["run"])
+  nerf_run = msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  scene, config = paint_world["scene"], run.config
+  cache = paint_data.read_cache(os.path.join(paint_world["run"], paint_data.CACHE_FILE),
+                                paint_data.cache_source(nerf_run))
+  index = np.asarray(run.params["paint"]["index"])
+  count = run.params["paint"]["colours"].shape[1] - 1
+  styles = painted_kind.style_images(run)
+  maps = paint_data.style_maps(scene, cache, styles, config)
+  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+  fill, start = paint_data.starting_colours(cache, photos, maps, index, count,
+                                            config.scene_box)
+  consts = paint_data.constants(scene, cache, styles, config, fill, maps)
+  views = jnp.repeat(jnp.arange(len(photos)), 2)
+  pairs = jnp.tile(jnp.arange(2), len(photos))
+  targets = paint.photo_targets(consts, views, pairs, scene.white_background)
+  error = lambda colours: float(jnp.mean(jnp.square(paint.render_pairs(
+      {"colours": jnp.asarray(colours), "index": jnp.asarray(index)}, consts["cache"], views,
+      pairs, config.scene_box, consts["background"]).reshape(targets.shape) - targets)))
+  assert error(start) < 0.5 * error(np.zeros_like(start))  # far closer than grey
+
+
+def test_the_grid_is_fitted_to_the_samples_weight_and_the_pixels_size():
+  rng = np.random.default_rng(0)
+  points = rng.uniform(-1.0, 1.0, (1, 2000, 3)).astype(np.float32)
+  points[0, 0] = (3.0, 0.0, 0.0)  # far, but carrying a sliver of the weight
+  weights = np.ones((1, 2000), np.float32)
+  weights[0, 0] = 1e-4
+  cache = {"points": points, "weights": weights}
+  box = paint_grid.fitted_box(cache, [], limit=5.0)
+  assert 0.95 * paint_grid.BOX_MARGIN < box <= paint_grid.BOX_MARGIN  # the far point is out
+  assert paint_grid.fitted_box(cache, [np.array([[0.0, 2.0, 0.0]] * 10)], 5.0) == pytest.approx(
+      2.0 * paint_grid.BOX_MARGIN)  # the render path's points are in
+  assert paint_grid.fitted_box(cache, [], limit=0.5) == 0.5
+  # A 6 x 8 view of the plane z = 0, pixels 0.01 apart, two samples a pixel.
+  rows, cols = np.mgrid[0:6, 0:8]
+  centre = np.stack([cols * 0.01, rows * 0.01, np.zeros_like(rows)], -1).reshape(-1, 3)
+  view = {"points": np.concatenate([centre, centre])[None].astype(np.float32),
+          "weights": np.full((1, 96), 0.5, np.float32),
+          "pixel": np.tile(np.arange(48), 2)[None], "accumulation": np.ones((1, 48))}
+  assert paint_grid.pixel_footprint(view, width=8) == pytest.approx(0.01)
+  assert paint_grid.fitted_resolution(1.0, 0.01) == 201
+  assert paint_grid.fitted_resolution(1.0, 0.1) == paint_grid.MIN_RESOLUTION
+  assert paint_grid.fitted_resolution(9.0, 0.01) == paint_grid.MAX_RESOLUTION
+
+
+def test_a_fitted_grid_is_recorded_and_kept_when_the_run_resumes(paint_world, tmp_path, capsys):
+  out = str(tmp_path / "fitted")
+  args = ["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
+          paint_world["styles"][0], "--out", out, "--init-steps", "1", "--style-size", "32"]
+  assert cli.main(args + ["--steps", "1"]) == 0
+  run = msnerf_jax.load_run(out)
+  nerf_box = msnerf_jax.load_run(paint_world["nerfs"]["fast"]).config.scene_box
+  assert 0 < run.config.scene_box <= nerf_box
+  assert paint_grid.MIN_RESOLUTION <= run.config.resolution <= paint_grid.MAX_RESOLUTION
+  assert np.shape(run.params["paint"]["index"]) == (run.config.resolution,) * 3
+  assert cli.main(args + ["--steps", "2"]) == 0  # the same options resume it
+  again = msnerf_jax.load_run(out)
+  assert again.step == 2
+  assert (again.config.scene_box, again.config.resolution) == (run.config.scene_box,
+                                                               run.config.resolution)
+  capsys.readouterr()
+  assert cli.main(args + ["--steps", "3", "--resolution", "12"]) == 2  # another grid: refused
+  assert "another config" in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- a new style
 
 
@@ -496,7 +581,8 @@ def test_a_crop_renders_from_its_rows_samples_as_the_whole_view_cropped(paint_wo
                            paint_data.cache_source(nerf_run))
   styles = painted_kind.style_images(run)
   identity = np.arange(run.params["paint"]["colours"].shape[1])
-  consts = paint_data.constants(scene, cache, styles, config, identity)
+  consts = paint_data.constants(scene, cache, styles, config, identity,
+                                paint_data.style_maps(scene, cache, styles, config))
   band = consts.pop("band")
   batch = {"view": jnp.array([0, 3, 1]), "style": jnp.array([1, 0, 1]),
            "top": jnp.array([0, 8, 5]), "left": jnp.array([8, 0, 3])}

@@ -24,6 +24,7 @@ from msnerf_jax.core import distributed, run_lock
 from msnerf_jax.core.checkpoint import Checkpoints
 from msnerf_jax.core.config import PaintConfig
 from msnerf_jax.core.errors import UserError
+from msnerf_jax.core.files import write_json
 from msnerf_jax.core.parallel import DataParallel, data_parallel
 from msnerf_jax.kinds import runs as runs_lib
 from msnerf_jax.kinds.painted import NAME as KIND, save_style_images
@@ -32,9 +33,11 @@ from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import apply_colour_map
 from msnerf_jax.train import loop as loop_lib
-from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, fill_map,
-                                         index_of, load_or_build_cache, read_cache,
-                                         read_styles, style_name)
+from msnerf_jax.train import paint_grid
+from msnerf_jax.train.paint_coverage import path_points
+from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, index_of,
+                                         load_or_build_cache, read_cache, read_styles,
+                                         starting_colours, style_maps, style_name)
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -53,12 +56,15 @@ def frozen_mask(params):
 
 
 def init_state(config: PaintConfig, nerf_params, n_styles: int, index: np.ndarray,
-               count: int) -> state_lib.TrainState:
-  """Grey colours for `n_styles` styles at the `count` painted vertices of `index`
-  (painted_field.paint_index) beside a copy of the NeRF's params; Adam on the colours only
-  (the NeRF and the index get no optimizer state)."""
-  params = {FROZEN: jax.tree_util.tree_map(jnp.array, nerf_params),
-            TRAINED: init_painted_params(n_styles, index, count)}
+               count: int, colours: Optional[np.ndarray] = None) -> state_lib.TrainState:
+  """Colours for `n_styles` styles at the `count` painted vertices of `index`
+  (painted_field.paint_index): the logits `colours` [M, V + 1, 3] (e.g.
+  paint_data.starting_colours'), or grey; beside a copy of the NeRF's params; Adam on the
+  colours only (the NeRF and the index get no optimizer state)."""
+  paint = init_painted_params(n_styles, index, count)
+  if colours is not None:
+    paint["colours"] = jnp.asarray(colours, jnp.float32).reshape(paint["colours"].shape)
+  params = {FROZEN: jax.tree_util.tree_map(jnp.array, nerf_params), TRAINED: paint}
   tx = state_lib.adam(state_lib.exponential_lr(config.optim), frozen=frozen_mask)
   return state_lib.create_state(params, tx)
 
@@ -233,18 +239,47 @@ def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, sce
 # ----------------------------------------------------------------------------- the loop
 
 
-def painted_vertices(run_dir: str, cache, config: PaintConfig, scene, nerf_run
-                     ) -> Tuple[np.ndarray, int]:
-  """(index, V) of the run: its checkpoint's when it has one (a resumed run keeps the
-  vertices it was painted on, whichever version chose them), else paint_data.index_of."""
+def saved_grid(run_dir: str, config: PaintConfig) -> PaintConfig:
+  """`config` with its fitted settings (scene_box, resolution 0) taken from the painted run
+  already in `run_dir`, if any: a resumed run keeps the grid it was fitted to, and its
+  run.json (which holds the fitted values) still matches the options it was started with."""
+  try:
+    saved = runs_lib.read_run_file(run_dir)
+  except (UserError, OSError):
+    return config  # no run there yet (prepare_run_dir reports what else is wrong)
+  if saved.get("kind") != KIND or not isinstance(saved.get("config"), dict):
+    return config
+  return dataclasses.replace(
+      config, scene_box=config.scene_box or float(saved["config"].get("scene_box", 0.0)),
+      resolution=config.resolution or int(saved["config"].get("resolution", 0)))
+
+
+def grid_and_vertices(run_dir: str, cache, config: PaintConfig, scene, nerf_run, limit: float
+                      ) -> Tuple[PaintConfig, np.ndarray, int]:
+  """(config with its grid resolved (paint_grid.fit), index, V): a resumed run's painted
+  vertices are its checkpoint's (whichever version chose them), a new run's
+  paint_data.index_of (the training views' samples and the render path's)."""
   checkpoints = Checkpoints(run_dir)
   try:
-    if checkpoints.latest_step() is not None:
-      paint = checkpoints.restore()["params"][TRAINED]
-      return np.asarray(paint["index"]), int(paint["colours"].shape[1]) - 1
+    saved = (checkpoints.restore()["params"][TRAINED]
+             if checkpoints.latest_step() is not None else None)
   finally:
     checkpoints.close()
-  return index_of(cache, config, scene, nerf_run)
+  fitted = config.scene_box and config.resolution
+  path = ([] if saved is not None and fitted else
+          list(path_points(scene, nerf_run, config.top_k, config.cache_threshold)))
+  config = paint_grid.fit(config, cache, path, scene.width, limit)
+  if saved is not None:
+    return config, np.asarray(saved["index"]), int(saved["colours"].shape[1]) - 1
+  return (config, *index_of(cache, config, path))
+
+
+def record_grid(run_dir: str, config: PaintConfig) -> None:
+  """run.json's config with the fitted grid (the primary process writes it)."""
+  record = runs_lib.read_run_file(run_dir)
+  if distributed.is_primary() and record["config"] != config_lib.to_dict(config):
+    record["config"] = config_lib.to_dict(config)
+    write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)
 
 
 @run_lock.released_after
@@ -253,13 +288,14 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
           callback: Optional[Callable[[int, Any], None]] = None, parallel: str = "shard_map"
           ) -> Dict[str, Any]:
   """Paints (or resumes painting) the styles `style_paths` on a NeRF run's frozen geometry
-  in `run_dir`. `config.nerf` becomes the NeRF run's config and `config.scene_box` its scene
-  box. Devices and processes as nerf.train's. Returns the loop's summary dict."""
+  in `run_dir`. `config.nerf` becomes the NeRF run's config; a scene_box or resolution of 0
+  is fitted to what the training views see (paint_grid.fit; run.json holds the values).
+  Devices and processes as nerf.train's. Returns the loop's summary dict."""
   styles = read_styles(style_paths, config.style_size)
   names = [style_name(p) for p in style_paths]
   nerf_run, scene, data = multistyle_lib.load_nerf_run(nerf_run_dir)
-  box = config.scene_box or nerf_run.config.scene_box or nerf_lib.scene_box(scene)
-  config = dataclasses.replace(config, nerf=nerf_run.config, scene_box=float(box))
+  limit = nerf_run.config.scene_box or nerf_lib.scene_box(scene)
+  config = saved_grid(run_dir, dataclasses.replace(config, nerf=nerf_run.config))
   devices = data_parallel(n_devices, parallel)
   check_config(config, len(names), devices, scene)
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),
@@ -275,11 +311,15 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
     holder.append(load_or_build_cache(run_dir, scene, nerf_run, config, progress))
   distributed.primary_first(prepare)
   cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
-  index, count = painted_vertices(run_dir, cache, config, scene, nerf_run)
-  consts = constants(scene, cache, styles, config, fill_map(cache, index, count, box))
-  n_views = len(scene.split("train"))
+  config, index, count = grid_and_vertices(run_dir, cache, config, scene, nerf_run, limit)
+  record_grid(run_dir, config)
+  maps = style_maps(scene, cache, styles, config)
+  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+  fill, start = starting_colours(cache, photos, maps, index, count, config.scene_box)
+  consts = constants(scene, cache, styles, config, fill, maps)
+  n_views = len(photos)
   summary = loop_lib.fit(
-      init_state(config, nerf_run.params, len(names), index, count),
+      init_state(config, nerf_run.params, len(names), index, count, start),
       compile_train_step(config, consts, devices, scene.white_background),
       lambda i: batch_of(i, config, n_views, names, (scene.height, scene.width)),
       run_dir=run_dir, **loop_lib.bookkeeping(config.optim),

@@ -102,11 +102,6 @@ def fill_from_neighbours(colours: np.ndarray, seen: np.ndarray, index: np.ndarra
   return out
 
 
-def _logit(x: np.ndarray) -> np.ndarray:
-  x = np.clip(x, 1e-3, 1.0 - 1e-3)
-  return np.log(x / (1.0 - x)).astype(np.float32)
-
-
 @run_lock.released_after
 def add_style(run_dir: str, style_path: str, decoder_dir: str,
               views: Optional[Sequence[int]] = None, count: int = 2, polish_steps: int = 150,
@@ -151,8 +146,8 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
                           config.scene_box)
   fill = paint_data.fill_map(cache, index, count, config.scene_box)
   colours = fill_from_neighbours(lifted["colours"], lifted["seen"], index)[fill]
-  polished = _polish(run, scene, cache, name, picture, _logit(colours), fill, polish_steps,
-                     progress)
+  polished = _polish(run, scene, cache, name, picture, paint_data.logit(colours), fill,
+                     polish_steps, progress)
   step = _append_style(run_dir, run, name, style_path, picture, polished)
   return {"style": name, "views": [int(v) for v in views],
           "seen": float(lifted["seen"][:-1].mean()), "seconds": time.time() - t0, "step": step}
@@ -183,7 +178,8 @@ def _polish(run, scene, cache, name, picture, start, fill, steps, progress) -> n
   if steps == 0:
     return start
   config = dataclasses.replace(run.config, init_steps=0, views_per_style=1)
-  consts = paint_data.constants(scene, cache, picture[None], config, fill)
+  consts = paint_data.constants(scene, cache, picture[None], config, fill,
+                                paint_data.style_maps(scene, cache, picture[None], config))
   index = np.asarray(run.params["paint"]["index"])
   state = paint.init_state(config, run.params["nerf"], 1, index, len(start) - 1)
   state = state.replace(params={**state.params, paint.TRAINED: {

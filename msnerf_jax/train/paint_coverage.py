@@ -10,10 +10,10 @@ an object fills the box with thin fog (on the cup capture 94% of a 128^3 grid st
 the light over a vertex spacing), while a render sees only the first surfaces along its
 rays; those are what the path's sample lists hold."""
 
-from typing import Dict, Iterable, Iterator, Tuple
+from typing import Dict, Iterable, Iterator, Optional, Tuple
 
 import numpy as np
-from scipy import ndimage
+from scipy import spatial
 
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import corners
@@ -55,31 +55,53 @@ def view_spread(cache: Dict[str, np.ndarray], view: int, index: np.ndarray, boun
   return rows, spread, np.repeat(cache["pixel"][view][keep], 8)
 
 
-def seen_vertices(cache: Dict[str, np.ndarray], index: np.ndarray, count: int, bound: float
-                  ) -> np.ndarray:
-  """bool [V + 1]: the painted vertices whose summed weight in all the cached views is above
-  SEEN_WEIGHT (row V, unpainted, never)."""
+def vertex_sums(cache: Dict[str, np.ndarray], index: np.ndarray, count: int, bound: float,
+                pictures: Optional[np.ndarray] = None
+                ) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+  """What all the cached views put on each painted vertex, in one pass: (weight [V + 1], the
+  summed weight of their samples there (view_spread's), colours [V + 1, 3] or None: the
+  weighted sum of the colours of those samples' pixels in `pictures` [N, n, 3], one picture
+  a cached view)."""
   total = np.zeros(count + 1)
+  sums = None if pictures is None else np.zeros((count + 1, 3))
   for view in range(len(cache["weights"])):
-    rows, spread, _ = view_spread(cache, view, index, bound)
+    rows, spread, pixel = view_spread(cache, view, index, bound)
     total += np.bincount(rows, spread, count + 1)
+    if sums is not None:
+      colour = np.asarray(pictures[view], np.float64)[pixel]
+      for c in range(3):
+        sums[:, c] += np.bincount(rows, spread * colour[:, c], count + 1)
+  return total, sums
+
+
+def seen_of(total: np.ndarray) -> np.ndarray:
+  """bool [V + 1]: the vertices whose summed weight (vertex_sums') is above SEEN_WEIGHT
+  (row V, unpainted, never)."""
   seen = total > SEEN_WEIGHT
   seen[-1] = False
   return seen
 
 
+def seen_vertices(cache: Dict[str, np.ndarray], index: np.ndarray, count: int, bound: float
+                  ) -> np.ndarray:
+  """bool [V + 1]: the painted vertices whose summed weight in all the cached views is above
+  SEEN_WEIGHT (row V, unpainted, never)."""
+  return seen_of(vertex_sums(cache, index, count, bound)[0])
+
+
 def nearest_seen(index: np.ndarray, seen: np.ndarray) -> np.ndarray:
   """int32 [V + 1]: for each painted vertex (rows of `index` [R, R, R]), itself when `seen`
-  [V + 1], else the row of the nearest seen vertex (Euclidean, in grid steps); row V
-  (unpainted) maps to itself, and so does everything when no vertex is seen."""
+  [V + 1], else the row of the nearest seen vertex (Euclidean, in grid steps: a k-d tree of
+  the seen vertices, so memory grows with V, not R^3); row V (unpainted) maps to itself, and
+  so does everything when no vertex is seen."""
   source = np.arange(len(seen), dtype=np.int32)
-  if not seen.any():
+  if not seen[:-1].any():
     return source
-  rows = index.reshape(-1)
-  grid_seen = (rows < len(seen) - 1) & seen[rows]
-  nearest = ndimage.distance_transform_edt(~grid_seen.reshape(index.shape),
-                                           return_distances=False, return_indices=True)
-  nearest_rows = index[tuple(nearest)].reshape(-1)
-  unseen = (rows < len(seen) - 1) & ~seen[rows]
-  source[rows[unseen]] = nearest_rows[unseen]
+  where = np.argwhere(index < len(seen) - 1)  # [V, 3] the painted vertices' grid positions
+  rows = index[tuple(where.T)]
+  looked = seen[rows]
+  if looked.all():
+    return source
+  _, nearest = spatial.cKDTree(where[looked]).query(where[~looked])
+  source[rows[~looked]] = rows[looked][nearest]
   return source

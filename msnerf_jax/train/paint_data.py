@@ -5,7 +5,7 @@ every step reads."""
 
 import itertools
 import os
-from typing import Any, Dict, Optional, Sequence
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -20,9 +20,9 @@ from msnerf_jax.models import vgg
 from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
-from msnerf_jax.style.transfer import colour_map
-from msnerf_jax.train.paint_coverage import (camera_samples, nearest_seen, path_points,
-                                             seen_vertices)
+from msnerf_jax.style.transfer import apply_colour_map, colour_map
+from msnerf_jax.train.paint_coverage import (camera_samples, nearest_seen, seen_of,
+                                             seen_vertices, vertex_sums)
 
 CACHE_FILE = "sample_cache.npz"
 
@@ -120,12 +120,11 @@ def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, prog
   return cache
 
 
-def index_of(cache, config: PaintConfig, scene, nerf_run):
+def index_of(cache, config: PaintConfig, path: Sequence[np.ndarray]):
   """(index, V) of the painted vertices: those around every cached sample that carries
-  weight and around every sample a render along the scene's camera path keeps
-  (paint_coverage.path_points), grown by one vertex (painted_field.paint_index)."""
+  weight and around every sample a render along the scene's camera path keeps (`path`:
+  paint_coverage.path_points' arrays), grown by one vertex (painted_field.paint_index)."""
   training = (p[w > 0] for p, w in zip(cache["points"], cache["weights"]))
-  path = path_points(scene, nerf_run, config.top_k, config.cache_threshold)
   return paint_index(itertools.chain(training, path), config.resolution, config.scene_box)
 
 
@@ -136,26 +135,61 @@ def fill_map(cache, index: np.ndarray, count: int, bound: float) -> np.ndarray:
   return nearest_seen(index, seen_vertices(cache, index, count, bound))
 
 
-def constants(scene, cache, styles: np.ndarray, config: PaintConfig, fill: np.ndarray
-              ) -> Dict[str, Any]:
-  """What every step reads and no step changes (placed on the devices once), for the
-  scene's training views and the style images: "cache" (the packed sample lists of the N
-  training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (each style's
-  colour map: "transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]), "targets"
-  (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params), "background" [3]
-  and "fill" [V + 1] (fill_map); with config.crop also "row_start" and "band" (row_starts;
-  the band is taken out by compile_train_step, a static size)."""
-  encoder = vgg.load_vgg_params()
+def starting_colours(cache, photos: np.ndarray, maps: Dict[str, Any], index: np.ndarray,
+                     count: int, bound: float) -> Tuple[np.ndarray, np.ndarray]:
+  """(fill [V + 1] as fill_map gives it, logits [M, V + 1, 3]): where a painting starts,
+  each painted vertex at the weighted mean of the photo colours the training views see at
+  it (`photos` [N, H, W, 3], the cache's views), moved to each style by its colour map
+  (`maps` as constants() holds them) -- the colour-transferred photos lifted into 3D in
+  closed form, which the init fit then refines. Vertices no view sees start at their
+  fill vertex's colour; the unpainted row stays grey (logit 0)."""
+  total, sums = vertex_sums(cache, index, count, bound, photos.reshape(len(photos), -1, 3))
+  seen = seen_of(total)
+  fill = nearest_seen(index, seen)
+  mean = (sums / np.maximum(total, 1e-12)[:, None])[fill]
+  logits = np.zeros((len(maps["transform"]), count + 1, 3), np.float32)
+  for m in range(len(logits)):
+    moved = apply_colour_map(jnp.asarray(mean, jnp.float32), maps["transform"][m],
+                             maps["mu_s"][m], maps["mu_t"][m])
+    logits[m, :-1] = logit(np.asarray(moved)[:-1])
+  return fill, logits
+
+
+def logit(x: np.ndarray) -> np.ndarray:
+  """The logits of colours x in [0, 1], clipped to [1e-3, 1 - 1e-3] first (float32)."""
+  x = np.clip(x, 1e-3, 1.0 - 1e-3)
+  return np.log(x / (1.0 - x)).astype(np.float32)
+
+
+def style_maps(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, jnp.ndarray]:
+  """Each style's colour map from the scene's training photos (colour_map; the identity
+  without config.colour_transfer), stacked: {"transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]}.
+  On white-background scenes the map moves the scene's colours, not the background's: the
+  pixels count by the NeRF's opacity (the targets are put back over white by it too)."""
   photos = np.asarray(scene.images[scene.split("train")], np.float32)
-  # On white-background scenes the map moves the scene's colours, not the background's: the
-  # pixels count by the NeRF's opacity (the targets are put back over white by it too).
   opacity = (np.asarray(cache["accumulation"], np.float32).reshape(photos.shape[:3])
              if scene.white_background else None)
   maps = [colour_map(jnp.asarray(photos), jnp.asarray(s), source_weights=opacity)
           if config.colour_transfer else (jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
           for s in styles]
+  return dict(zip(("transform", "mu_s", "mu_t"), _stack([tuple(m) for m in maps])))
+
+
+def _stack(trees):
+  return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)
+
+
+def constants(scene, cache, styles: np.ndarray, config: PaintConfig, fill: np.ndarray,
+              maps: Dict[str, jnp.ndarray]) -> Dict[str, Any]:
+  """What every step reads and no step changes (placed on the devices once), for the
+  scene's training views and the style images: "cache" (the packed sample lists of the N
+  training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (style_maps),
+  "targets" (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params),
+  "background" [3] and "fill" [V + 1] (fill_map); with config.crop also "row_start" and
+  "band" (row_starts; the band is taken out by compile_train_step, a static size)."""
+  encoder = vgg.load_vgg_params()
+  photos = np.asarray(scene.images[scene.split("train")], np.float32)
   targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
-  stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
   crops = {}
   if config.crop:
     row_start, band = row_starts(cache, scene.height, scene.width, config.crop)
@@ -163,8 +197,7 @@ def constants(scene, cache, styles: np.ndarray, config: PaintConfig, fill: np.nd
   return dict(
       **crops,
       cache={k: jnp.asarray(v) for k, v in cache.items()}, photos=jnp.asarray(photos),
-      maps=dict(zip(("transform", "mu_s", "mu_t"), stack([tuple(m) for m in maps]))),
-      targets=stack(targets), encoder=encoder, fill=jnp.asarray(fill, jnp.int32),
+      maps=maps, targets=_stack(targets), encoder=encoder, fill=jnp.asarray(fill, jnp.int32),
       background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
 
 

@@ -17,14 +17,15 @@ class PaintConfig:
   (models/painted_field.py), fitted first to the photos colour-transferred to each style,
   then with a style loss on whole rendered training views (train/paint.py).
 
-  `nerf` is the NeRF run's config; `scene_box` the half side of the box the grids cover (0 =
-  the NeRF's, resolved from the scene when training starts).
+  `nerf` is the NeRF run's config; `scene_box` the half side of the box the grids cover and
+  `resolution` their vertices a side (0 = fitted to what the training views see when
+  training starts: train/paint_grid.py; the run's run.json holds the fitted values).
   """
   nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
-  scene_box: float = setting(0.0, "half side of the box the colour grids cover (0 = the "
-                                  "NeRF's)")
-  resolution: int = setting(128, "colour grid cells a side (each style's grid holds R^3 x 3 "
-                                 "numbers)")
+  scene_box: float = setting(0.0, "half side of the box the colour grids cover (0 = fitted "
+                                  "to what the training views see, at most the NeRF's)")
+  resolution: int = setting(0, "colour grid vertices a side (0 = about a pixel apart on the "
+                               "surfaces the views see, 128 to 256)")
   style_loss: str = setting("nnfm", "the style term: nnfm (ARF's nearest-neighbour feature "
                                     "matching on VGG16 relu3_1..3_3) or adain (the AdaIN "
                                     "statistics of relu1_1..4_1)")
@@ -53,8 +54,9 @@ class PaintConfig:
     """The config itself, or UserError `--OPTION VALUE: problem` naming the first setting
     that cannot work (the styles and the NeRF run are the trainer's checks)."""
     if self.scene_box < 0:
-      bad_setting(self, "scene_box", "must be >= 0 (0 = the NeRF's)")
-    check_at_least(self, ("resolution",), 2)
+      bad_setting(self, "scene_box", "must be >= 0 (0 = fitted)")
+    if self.resolution != 0 and self.resolution < 2:
+      bad_setting(self, "resolution", "must be 0 (fitted) or at least 2")
     if self.style_loss not in PAINT_LOSSES:
       bad_setting(self, "style_loss", f"choose from {', '.join(PAINT_LOSSES)}")
     check_non_negative(self, ("style_weight", "content_weight", "tv_weight"))
