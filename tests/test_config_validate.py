@@ -115,6 +115,7 @@ BAD = [
     (PaintConfig, {}, "tv_weight", float("inf"), "--tv-weight inf"),
     (PaintConfig, {}, "style_size", 8, "--style-size 8"),
     (PaintConfig, {}, "init_steps", -1, "--init-steps -1"),
+    (PaintConfig, {}, "path_views", -1, "--path-views -1"),
     (PaintConfig, {}, "steps", 0, "--steps 0"),
     (PaintConfig, {}, "views_per_style", 0, "--views-per-style 0"),
     (PaintConfig, {}, "crop", 16, "--crop 16"),

@@ -1,13 +1,14 @@
-"""Painting colour fields on a NeRF run's frozen geometry, top to bottom: the training views'
-sample lists cached once (nerf.sample_cache), each step a batch of (training view, style)
-pairs rendered from the cache (a gather and a segment sum: no trunk evaluation), fitted
-first to the photos colour-transferred to the style (MSE), then with a style loss on the
-whole rendered views (style.painting_loss: NNFM or AdaIN statistics, content, total
-variation); Adam on the colour grids alone. No per-view pixel target is used after the
-first init_steps, so views cannot disagree: one 3D texture serves them all. The grids cover
-what the scene's camera path sees too, and after every step the vertices no training view
-sees take the colour of the nearest one that is seen (train/paint_coverage.py): a render
-path that leaves the photos' sight finds painted colours there, not grey."""
+"""Painting colour fields on a NeRF run's frozen geometry, top to bottom: the views' sample
+lists cached once (nerf.sample_cache; the training views, then cameras along the scene's
+render path, whose photo-real NeRF renders stand in for photos), each step a batch of
+(view, style) pairs rendered from the cache (a gather and a segment sum: no trunk
+evaluation), fitted first to the photos colour-transferred to the style (MSE), then with a
+style loss on the whole rendered views (style.painting_loss: NNFM or AdaIN statistics,
+content, total variation); Adam on the colour grids alone. No per-view pixel target is used
+after the first init_steps, so views cannot disagree: one 3D texture serves them all. The
+grid is fitted to what the views see (train/paint_grid.py), the colours start at the
+photos lifted into 3D, and after every step the vertices no view sees take the colour of
+the nearest one that is seen (train/paint_coverage.py)."""
 
 import dataclasses
 import functools
@@ -34,10 +35,10 @@ from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import apply_colour_map
 from msnerf_jax.train import loop as loop_lib
 from msnerf_jax.train import paint_grid
-from msnerf_jax.train.paint_coverage import path_points
 from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, index_of,
-                                         load_or_build_cache, read_cache, read_styles,
-                                         starting_colours, style_maps, style_name)
+                                         load_or_build_cache, painting_views, read_cache,
+                                         read_styles, starting_colours, style_maps,
+                                         style_name)
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -254,24 +255,21 @@ def saved_grid(run_dir: str, config: PaintConfig) -> PaintConfig:
       resolution=config.resolution or int(saved["config"].get("resolution", 0)))
 
 
-def grid_and_vertices(run_dir: str, cache, config: PaintConfig, scene, nerf_run, limit: float
+def grid_and_vertices(run_dir: str, cache, config: PaintConfig, width: int, limit: float
                       ) -> Tuple[PaintConfig, np.ndarray, int]:
-  """(config with its grid resolved (paint_grid.fit), index, V): a resumed run's painted
-  vertices are its checkpoint's (whichever version chose them), a new run's
-  paint_data.index_of (the training views' samples and the render path's)."""
+  """(config with its grid resolved (paint_grid.fit over the painting's views' `cache`),
+  index, V): a resumed run's painted vertices are its checkpoint's (whichever version chose
+  them), a new run's paint_data.index_of."""
   checkpoints = Checkpoints(run_dir)
   try:
     saved = (checkpoints.restore()["params"][TRAINED]
              if checkpoints.latest_step() is not None else None)
   finally:
     checkpoints.close()
-  fitted = config.scene_box and config.resolution
-  path = ([] if saved is not None and fitted else
-          list(path_points(scene, nerf_run, config.top_k, config.cache_threshold)))
-  config = paint_grid.fit(config, cache, path, scene.width, limit)
+  config = paint_grid.fit(config, cache, [], width, limit)
   if saved is not None:
     return config, np.asarray(saved["index"]), int(saved["colours"].shape[1]) - 1
-  return (config, *index_of(cache, config, path))
+  return (config, *index_of(cache, config))
 
 
 def record_grid(run_dir: str, config: PaintConfig) -> None:
@@ -310,14 +308,16 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
     save_style_images(run_dir, styles)
     holder.append(load_or_build_cache(run_dir, scene, nerf_run, config, progress))
   distributed.primary_first(prepare)
-  cache = holder[0] if holder else load_or_build_cache(run_dir, scene, nerf_run, config, False)
-  config, index, count = grid_and_vertices(run_dir, cache, config, scene, nerf_run, limit)
+  cache = holder.pop() if holder else load_or_build_cache(run_dir, scene, nerf_run, config,
+                                                          False)
+  cache, photos = painting_views(cache, scene, nerf_run, config)
+  config, index, count = grid_and_vertices(run_dir, cache, config, scene.width, limit)
   record_grid(run_dir, config)
-  maps = style_maps(scene, cache, styles, config)
-  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+  maps = style_maps(scene, cache, photos, styles, config)
   fill, start = starting_colours(cache, photos, maps, index, count, config.scene_box)
-  consts = constants(scene, cache, styles, config, fill, maps)
+  consts = constants(scene, cache, photos, styles, config, fill, maps)
   n_views = len(photos)
+  del cache, photos  # the steps read the constants' copies
   summary = loop_lib.fit(
       init_state(config, nerf_run.params, len(names), index, count, start),
       compile_train_step(config, consts, devices, scene.white_background),

@@ -137,7 +137,9 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
   decoder = load_decoder(decoder_dir)
   run_lock.acquire(run_dir)
   nerf_run = runs_lib.load_run(run.record["nerf_run"], "nerf")
-  cache = paint_data.load_or_build_cache(run_dir, scene, nerf_run, config, progress)
+  cache, photos = paint_data.painting_views(
+      paint_data.load_or_build_cache(run_dir, scene, nerf_run, config, progress), scene,
+      nerf_run, config)
   encoder = vgg.load_vgg_params()
   full = stylized_key_views(scene, train, views, picture, decoder, encoder, scale)
   index = np.asarray(run.params["paint"]["index"])
@@ -146,8 +148,8 @@ def add_style(run_dir: str, style_path: str, decoder_dir: str,
                           config.scene_box)
   fill = paint_data.fill_map(cache, index, count, config.scene_box)
   colours = fill_from_neighbours(lifted["colours"], lifted["seen"], index)[fill]
-  polished = _polish(run, scene, cache, name, picture, paint_data.logit(colours), fill,
-                     polish_steps, progress)
+  polished = _polish(run, scene, (cache, photos), name, picture, paint_data.logit(colours),
+                     fill, polish_steps, progress)
   step = _append_style(run_dir, run, name, style_path, picture, polished)
   return {"style": name, "views": [int(v) for v in views],
           "seen": float(lifted["seen"][:-1].mean()), "seconds": time.time() - t0, "step": step}
@@ -171,21 +173,22 @@ def stylized_key_views(scene, train, views, picture, decoder, encoder, scale):
   return np.stack(out)
 
 
-def _polish(run, scene, cache, name, picture, start, fill, steps, progress) -> np.ndarray:
+def _polish(run, scene, views, name, picture, start, fill, steps, progress) -> np.ndarray:
   """The new style's colour logits [V + 1, 3] after `steps` Adam steps of the style loss on
-  random training views (the run's loss settings), starting from `start` (`fill`: the
-  run's fill_map)."""
+  random views of the painting (`views`: paint_data.painting_views' (cache, photos)), with
+  the run's loss settings, starting from `start` (`fill`: the run's fill_map)."""
   if steps == 0:
     return start
   config = dataclasses.replace(run.config, init_steps=0, views_per_style=1)
-  consts = paint_data.constants(scene, cache, picture[None], config, fill,
-                                paint_data.style_maps(scene, cache, picture[None], config))
+  cache, photos = views
+  consts = paint_data.constants(scene, cache, photos, picture[None], config, fill,
+                                paint_data.style_maps(scene, cache, photos, picture[None], config))
   index = np.asarray(run.params["paint"]["index"])
   state = paint.init_state(config, run.params["nerf"], 1, index, len(start) - 1)
   state = state.replace(params={**state.params, paint.TRAINED: {
       "colours": jnp.asarray(start)[None], "index": jnp.asarray(index)}})
   step = paint.compile_train_step(config, consts, data_parallel(1), scene.white_background)
-  n_views = len(scene.split("train"))
+  n_views = len(photos)
   for i in progress_bar(range(steps), desc=f"polishing {name}", disable=not progress):
     state, _ = step(state, paint.batch_of(i, config, n_views, [name],
                                           (scene.height, scene.width)))

@@ -1,25 +1,25 @@
-"""Where a painting's colours reach: the grid vertices that a render along the scene's
-camera path sees (they are painted even where no training view looks: the path may go
-there), how much each painted vertex weighs in the training views (the ones that weigh
-nothing get no gradient from any view), and, for those, the seen vertex they take their
-colour from (the nearest: a gather map the trainer applies after every step, so a painting
-has no grey holes where the path looks).
+"""Where a painting's colours reach: the cameras along the scene's render path that it is
+painted from beside the training views (path_views: the path may look where no photo
+does), how much each painted vertex weighs in those views (the ones that weigh nothing get
+no gradient from any view), and, for those, the seen vertex they take their colour from
+(the nearest: a gather map the trainer applies after every step, so a painting has no grey
+holes).
 
 Density alone does not say where to paint: a NeRF of a capture that photographs one side of
 an object fills the box with thin fog (on the cup capture 94% of a 128^3 grid stops 1% of
 the light over a vertex spacing), while a render sees only the first surfaces along its
-rays; those are what the path's sample lists hold."""
+rays; those are what the views' sample lists hold."""
 
-from typing import Dict, Iterable, Iterator, Optional, Tuple
+from typing import Dict, Iterable, Iterator, List, Optional, Tuple
 
 import numpy as np
 from scipy import spatial
 
+from msnerf_jax.kinds import views as views_lib
 from msnerf_jax.models.nerf import NerfField
 from msnerf_jax.models.painted_field import corners
 from msnerf_jax.nerf import sample_cache
 
-PATH_VIEWS = 24  # cameras along the render path whose samples are painted.
 SEEN_WEIGHT = 1e-3  # a vertex is seen when its summed weight in the training views is above.
 
 
@@ -33,13 +33,27 @@ def camera_samples(scene, nerf_run, cameras: Iterable, top_k: int, threshold: fl
                                     nerf_run.config, top_k, threshold)
 
 
-def path_points(scene, nerf_run, top_k: int, threshold: float, views: int = PATH_VIEWS
+def path_points(scene, nerf_run, top_k: int, threshold: float, views: int
                 ) -> Iterator[np.ndarray]:
   """The points [P, 3] of each of `views` cameras spread along the scene's render path that
   carry weight above `threshold` in its render by the frozen NeRF (camera_samples, as the
   training views' cache keeps them)."""
   for samples in camera_samples(scene, nerf_run, scene.path_poses(views), top_k, threshold):
     yield samples["points"]
+
+
+def path_views(scene, nerf_run, top_k: int, threshold: float, views: int
+               ) -> Tuple[List[Dict[str, np.ndarray]], np.ndarray]:
+  """`views` cameras spread along the scene's render path as painting views: (their sample
+  lists (camera_samples), their photo-real renders by the frozen NeRF [P, H, W, 3], which
+  stand in for photos), or ([], [0, H, W, 3]) for none."""
+  poses = scene.path_poses(views) if views else []
+  samples = list(camera_samples(scene, nerf_run, poses, top_k, threshold))
+  renders = [views_lib.render_view(scene, nerf_run.params, nerf_run.config, pose)["rgb"]
+             for pose in poses]
+  shape = (0, scene.height, scene.width, 3)
+  return samples, (np.stack(renders).astype(np.float32) if renders else np.zeros(shape,
+                                                                              np.float32))
 
 
 def view_spread(cache: Dict[str, np.ndarray], view: int, index: np.ndarray, bound: float

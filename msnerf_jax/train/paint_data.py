@@ -3,7 +3,6 @@ cached from the frozen NeRF (RUN/sample_cache.npz, stamped with the NeRF run it 
 from), the painted vertices, where each row's samples start (for crops), and the constants
 every step reads."""
 
-import itertools
 import os
 from typing import Any, Dict, Optional, Sequence, Tuple
 
@@ -21,8 +20,8 @@ from msnerf_jax.models.painted_field import paint_index
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.style.transfer import apply_colour_map, colour_map
-from msnerf_jax.train.paint_coverage import (camera_samples, nearest_seen, seen_of,
-                                             seen_vertices, vertex_sums)
+from msnerf_jax.train.paint_coverage import (camera_samples, nearest_seen, path_views,
+                                             seen_of, seen_vertices, vertex_sums)
 
 CACHE_FILE = "sample_cache.npz"
 
@@ -120,12 +119,34 @@ def load_or_build_cache(run_dir: str, scene, nerf_run, config: PaintConfig, prog
   return cache
 
 
-def index_of(cache, config: PaintConfig, path: Sequence[np.ndarray]):
-  """(index, V) of the painted vertices: those around every cached sample that carries
-  weight and around every sample a render along the scene's camera path keeps (`path`:
-  paint_coverage.path_points' arrays), grown by one vertex (painted_field.paint_index)."""
-  training = (p[w > 0] for p, w in zip(cache["points"], cache["weights"]))
-  return paint_index(itertools.chain(training, path), config.resolution, config.scene_box)
+def painting_views(cache, scene, nerf_run, config: PaintConfig
+                   ) -> Tuple[Dict[str, np.ndarray], np.ndarray]:
+  """(sample lists, photos [N + P, H, W, 3]) of the views a painting is optimised on: the N
+  training views (the packed `cache` and the scene's photos), then config.path_views
+  cameras along the scene's render path (paint_coverage.path_views: the photo-real NeRF's
+  renders stand in for their photos), so the style loss paints what the path looks at
+  where no photo does."""
+  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+  lists, renders = path_views(scene, nerf_run, config.top_k, config.cache_threshold,
+                              config.path_views)
+  if not lists:
+    return cache, photos
+  extra = sample_cache.pack_views(lists)
+  n, size = len(cache["weights"]), max(cache["weights"].shape[1], extra["weights"].shape[1])
+  joined = {"accumulation": np.concatenate([cache["accumulation"], extra["accumulation"]])}
+  for key in sample_cache.CACHE_KEYS:  # padded as pack_views pads (weight 0 at pixel 0)
+    out = np.zeros((n + len(lists), size) + cache[key].shape[2:], cache[key].dtype)
+    out[:n, :cache[key].shape[1]] = cache[key]
+    out[n:, :extra[key].shape[1]] = extra[key]
+    joined[key] = out
+  return joined, np.concatenate([photos, renders])
+
+
+def index_of(cache, config: PaintConfig):
+  """(index, V) of the painted vertices: those around every sample of the painting's views
+  (painting_views') that carries weight, grown by one vertex (painted_field.paint_index)."""
+  points = (p[w > 0] for p, w in zip(cache["points"], cache["weights"]))
+  return paint_index(points, config.resolution, config.scene_box)
 
 
 def fill_map(cache, index: np.ndarray, count: int, bound: float) -> np.ndarray:
@@ -161,12 +182,13 @@ def logit(x: np.ndarray) -> np.ndarray:
   return np.log(x / (1.0 - x)).astype(np.float32)
 
 
-def style_maps(scene, cache, styles: np.ndarray, config: PaintConfig) -> Dict[str, jnp.ndarray]:
-  """Each style's colour map from the scene's training photos (colour_map; the identity
-  without config.colour_transfer), stacked: {"transform" [M, 3, 3], "mu_s", "mu_t" [M, 3]}.
-  On white-background scenes the map moves the scene's colours, not the background's: the
-  pixels count by the NeRF's opacity (the targets are put back over white by it too)."""
-  photos = np.asarray(scene.images[scene.split("train")], np.float32)
+def style_maps(scene, cache, photos: np.ndarray, styles: np.ndarray, config: PaintConfig
+               ) -> Dict[str, jnp.ndarray]:
+  """Each style's colour map from the painting's photos [N, H, W, 3] (colour_map; the
+  identity without config.colour_transfer), stacked: {"transform" [M, 3, 3], "mu_s", "mu_t"
+  [M, 3]}. On white-background scenes the map moves the scene's colours, not the
+  background's: the pixels count by the NeRF's opacity (the targets are put back over white
+  by it too)."""
   opacity = (np.asarray(cache["accumulation"], np.float32).reshape(photos.shape[:3])
              if scene.white_background else None)
   maps = [colour_map(jnp.asarray(photos), jnp.asarray(s), source_weights=opacity)
@@ -179,16 +201,15 @@ def _stack(trees):
   return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)
 
 
-def constants(scene, cache, styles: np.ndarray, config: PaintConfig, fill: np.ndarray,
-              maps: Dict[str, jnp.ndarray]) -> Dict[str, Any]:
+def constants(scene, cache, photos: np.ndarray, styles: np.ndarray, config: PaintConfig,
+              fill: np.ndarray, maps: Dict[str, jnp.ndarray]) -> Dict[str, Any]:
   """What every step reads and no step changes (placed on the devices once), for the
-  scene's training views and the style images: "cache" (the packed sample lists of the N
-  training views, sample_cache.pack_views), "photos" [N, H, W, 3], "maps" (style_maps),
+  painting's views and the style images: "cache" (the packed sample lists of the N views,
+  painting_views'), "photos" [N, H, W, 3] (theirs), "maps" (style_maps),
   "targets" (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params),
   "background" [3] and "fill" [V + 1] (fill_map); with config.crop also "row_start" and
   "band" (row_starts; the band is taken out by compile_train_step, a static size)."""
   encoder = vgg.load_vgg_params()
-  photos = np.asarray(scene.images[scene.split("train")], np.float32)
   targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
   crops = {}
   if config.crop:

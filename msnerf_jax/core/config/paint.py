@@ -39,6 +39,9 @@ class PaintConfig:
   style_size: int = setting(256, "style images are cover-cropped to this square first")
   init_steps: int = setting(100, "first steps (of --steps): MSE to the colour-transferred "
                                  "photos")
+  path_views: int = setting(24, "cameras along the scene's render path painted too (the "
+                                "photo-real NeRF's renders stand in for their photos; 0 = "
+                                "the training views alone)")
   views_per_style: int = setting(1, "training views rendered in each style per step")
   crop: int = setting(0, "the style loss sees a random crop of this many pixels a side of "
                          "each rendered view (0 = the whole view; for views too large for "
@@ -61,7 +64,7 @@ class PaintConfig:
       bad_setting(self, "style_loss", f"choose from {', '.join(PAINT_LOSSES)}")
     check_non_negative(self, ("style_weight", "content_weight", "tv_weight"))
     check_at_least(self, ("style_size",), 16)
-    check_at_least(self, ("init_steps",), 0)
+    check_at_least(self, ("init_steps", "path_views"), 0)
     check_at_least(self, ("views_per_style", "top_k"))
     if self.crop and self.crop < 32:
       bad_setting(self, "crop", "must be 0 (whole views) or at least 32 (VGG's relu3 needs 8x8)")
