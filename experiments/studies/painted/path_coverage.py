@@ -1,8 +1,9 @@
 """Where a painted run's render path draws its colours from: the share of the composite
 weight along the scene's camera path that falls on unpainted vertices (outside the run's
-index: the grey row) and on painted vertices no training view sees (which the trainer fills
-from the nearest seen vertex since paint_coverage), with how grey the painted frames are
-there. A render path that leaves the photos' sight (the cup capture's) shows it.
+index: the grey row) and on painted vertices none of the painting's views sees (the
+training views, and the path's cameras for runs painted with --path-views; the trainer
+fills those from the nearest seen vertex since paint_coverage), with how grey the painted
+frames are there. A render path that leaves the photos' sight (the cup capture's) shows it.
 
   python experiments/studies/painted/path_coverage.py --run RUNS/painted [--frames 20]
 
@@ -34,6 +35,7 @@ def coverage(run_dir: str, frames: int):
                                 paint_data.cache_source(nerf_run))
   index = np.asarray(run.params["paint"]["index"])
   count, box = run.params["paint"]["colours"].shape[1] - 1, run.config.scene_box
+  cache, _ = paint_data.painting_views(cache, scene, nerf_run, run.config)
   seen = seen_vertices(cache, index, count, box)
   field = NerfField(nerf_run.config)
   total = unpainted = unseen = 0.0
