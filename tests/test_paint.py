@@ -414,11 +414,11 @@ def test_the_grid_is_fitted_to_the_samples_weight_and_the_pixels_size():
   weights = np.ones((1, 2000), np.float32)
   weights[0, 0] = 1e-4
   cache = {"points": points, "weights": weights}
-  box = paint_grid.fitted_box(cache, [], limit=5.0)
+  box = paint_grid.fitted_box(cache, limit=5.0)
   assert 0.95 * paint_grid.BOX_MARGIN < box <= paint_grid.BOX_MARGIN  # the far point is out
-  assert paint_grid.fitted_box(cache, [np.array([[0.0, 2.0, 0.0]] * 10)], 5.0) == pytest.approx(
-      2.0 * paint_grid.BOX_MARGIN)  # the render path's points are in
-  assert paint_grid.fitted_box(cache, [], limit=0.5) == 0.5
+  weights[0, 0] = 10.0  # now it carries 0.5% of the weight: in
+  assert paint_grid.fitted_box(cache, 5.0) == pytest.approx(3.0 * paint_grid.BOX_MARGIN)
+  assert paint_grid.fitted_box(cache, limit=0.5) == 0.5
   # A 6 x 8 view of the plane z = 0, pixels 0.01 apart, two samples a pixel.
   rows, cols = np.mgrid[0:6, 0:8]
   centre = np.stack([cols * 0.01, rows * 0.01, np.zeros_like(rows)], -1).reshape(-1, 3)

@@ -266,7 +266,7 @@ def grid_and_vertices(run_dir: str, cache, config: PaintConfig, width: int, limi
              if checkpoints.latest_step() is not None else None)
   finally:
     checkpoints.close()
-  config = paint_grid.fit(config, cache, [], width, limit)
+  config = paint_grid.fit(config, cache, width, limit)
   if saved is not None:
     return config, np.asarray(saved["index"]), int(saved["colours"].shape[1]) - 1
   return (config, *index_of(cache, config))
@@ -287,7 +287,7 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
           ) -> Dict[str, Any]:
   """Paints (or resumes painting) the styles `style_paths` on a NeRF run's frozen geometry
   in `run_dir`. `config.nerf` becomes the NeRF run's config; a scene_box or resolution of 0
-  is fitted to what the training views see (paint_grid.fit; run.json holds the values).
+  is fitted to what the painting's views see (paint_grid.fit; run.json holds the values).
   Devices and processes as nerf.train's. Returns the loop's summary dict."""
   styles = read_styles(style_paths, config.style_size)
   names = [style_name(p) for p in style_paths]

@@ -159,8 +159,8 @@ def fill_map(cache, index: np.ndarray, count: int, bound: float) -> np.ndarray:
 def starting_colours(cache, photos: np.ndarray, maps: Dict[str, Any], index: np.ndarray,
                      count: int, bound: float) -> Tuple[np.ndarray, np.ndarray]:
   """(fill [V + 1] as fill_map gives it, logits [M, V + 1, 3]): where a painting starts,
-  each painted vertex at the weighted mean of the photo colours the training views see at
-  it (`photos` [N, H, W, 3], the cache's views), moved to each style by its colour map
+  each painted vertex at the weighted mean of the photo colours the painting's views see
+  at it (`photos` [N, H, W, 3], the cache's views), moved to each style by its colour map
   (`maps` as constants() holds them) -- the colour-transferred photos lifted into 3D in
   closed form, which the init fit then refines. Vertices no view sees start at their
   fill vertex's colour; the unpainted row stays grey (logit 0)."""

@@ -1,8 +1,8 @@
-"""Where a painting's colour grid lies and how fine it is, fitted to what the training views
-see: the box (centred at the origin, like the NeRF's) holds all but a sliver of the weight of
-the training views' samples and of the render path's, and the grid's vertex spacing is about
-the size of a pixel on the surfaces the views see, between MIN_RESOLUTION and MAX_RESOLUTION
-vertices a side.
+"""Where a painting's colour grid lies and how fine it is, fitted to what the views see: the
+box (centred at the origin, like the NeRF's) holds all but a sliver of the weight of the
+painting's views' samples (the training views' and the render path's), and the grid's
+vertex spacing is about the size of a pixel on the surfaces the views see, between
+MIN_RESOLUTION and MAX_RESOLUTION vertices a side.
 
 A grid coarser than a pixel cannot hold strokes: on the cup capture (100x75 views, the
 surfaces 1.4-2.6 units from the cameras, 74 px focal length) the NeRF's 11.4-unit box at 128
@@ -12,12 +12,12 @@ on lego 100x100 the same grid is under a pixel.
 
 import dataclasses
 import math
-from typing import Dict, Iterable
+from typing import Dict
 
 import numpy as np
 
 MIN_RESOLUTION, MAX_RESOLUTION = 128, 256  # vertices a side of a fitted grid.
-BOX_SHARE = 0.999  # of the training views' sample weight (and of the path's samples) inside.
+BOX_SHARE = 0.999  # of the views' sample weight inside the box.
 BOX_MARGIN = 1.05  # the box's half side over that quantile.
 
 
@@ -28,16 +28,14 @@ def weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> floa
   return float(values[order][min(np.searchsorted(share, q * share[-1]), len(order) - 1)])
 
 
-def fitted_box(cache: Dict[str, np.ndarray], path: Iterable[np.ndarray], limit: float) -> float:
-  """Half side of the box centred at the origin that holds BOX_SHARE of the cached training
-  views' sample weight and of the render path's sample points ([P, 3] each), grown by
-  BOX_MARGIN, at most `limit` (the NeRF's box). Points outside read the nearest face."""
+def fitted_box(cache: Dict[str, np.ndarray], limit: float) -> float:
+  """Half side of the box centred at the origin that holds BOX_SHARE of the cached views'
+  sample weight (the painting's views: the training views and the render path's cameras),
+  grown by BOX_MARGIN, at most `limit` (the NeRF's box). Points outside read the nearest
+  face."""
   keep = cache["weights"] > 0
   reach = np.abs(cache["points"][keep]).max(-1)
-  box = weighted_quantile(reach, cache["weights"][keep], BOX_SHARE)
-  path = [np.abs(p).max(-1) for p in path if len(p)]
-  if path:
-    box = max(box, float(np.quantile(np.concatenate(path), BOX_SHARE)))
+  box = weighted_quantile(reach, cache["weights"][keep], BOX_SHARE) if reach.size else 0.0
   return float(min(limit, BOX_MARGIN * box)) if box > 0 else float(limit)
 
 
@@ -69,11 +67,10 @@ def fitted_resolution(box: float, footprint: float) -> int:
   return int(np.clip(math.ceil(2.0 * box / footprint) + 1, MIN_RESOLUTION, MAX_RESOLUTION))
 
 
-def fit(config, cache: Dict[str, np.ndarray], path: Iterable[np.ndarray], width: int,
-        limit: float):
+def fit(config, cache: Dict[str, np.ndarray], width: int, limit: float):
   """The PaintConfig with its grid resolved: scene_box 0 -> fitted_box (at most `limit`, the
   NeRF's box), resolution 0 -> fitted_resolution for the cached views' pixel_footprint
   (`width` pixels a row); settings given stay."""
-  box = config.scene_box or fitted_box(cache, path, limit)
+  box = config.scene_box or fitted_box(cache, limit)
   resolution = config.resolution or fitted_resolution(box, pixel_footprint(cache, width))
   return dataclasses.replace(config, scene_box=float(box), resolution=int(resolution))

@@ -18,12 +18,12 @@ class PaintConfig:
   then with a style loss on whole rendered training views (train/paint.py).
 
   `nerf` is the NeRF run's config; `scene_box` the half side of the box the grids cover and
-  `resolution` their vertices a side (0 = fitted to what the training views see when
+  `resolution` their vertices a side (0 = fitted to what the painting's views see when
   training starts: train/paint_grid.py; the run's run.json holds the fitted values).
   """
   nerf: NerfConfig = dataclasses.field(default_factory=NerfConfig)
   scene_box: float = setting(0.0, "half side of the box the colour grids cover (0 = fitted "
-                                  "to what the training views see, at most the NeRF's)")
+                                  "to what the views see, at most the NeRF's)")
   resolution: int = setting(0, "colour grid vertices a side (0 = about a pixel apart on the "
                                "surfaces the views see, 128 to 256)")
   style_loss: str = setting("nnfm", "the style term: nnfm (ARF's nearest-neighbour feature "
