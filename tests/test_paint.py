@@ -25,7 +25,7 @@ from msnerf_jax.nerf import render as render_lib
 from msnerf_jax.nerf import sample_cache
 from msnerf_jax.style import painting_loss
 from msnerf_jax.train import nerf, paint, paint_data, paint_grid
-from msnerf_jax.train.paint_coverage import nearest_seen, path_points, seen_vertices
+from msnerf_jax.train.paint_coverage import nearest_seen, seen_vertices
 
 from conftest import write_blender_scene
 from test_fast_trunk import TINY_FAST
@@ -351,12 +351,13 @@ def test_a_painting_covers_its_camera_path_and_leaves_no_unseen_vertex_grey(pain
   index = np.asarray(run.params["paint"]["index"])
   colours = np.asarray(run.params["paint"]["colours"])
   count, box = colours.shape[1] - 1, run.config.scene_box
-  for points in path_points(scene, nerf_run, run.config.top_k, run.config.cache_threshold,
-                            run.config.path_views):
-    assert np.all(index.reshape(-1)[corners(points, index.shape[0], box, np)[0]] < count)
   views, photos = paint_data.painting_views(cache, scene, nerf_run, run.config)
-  assert len(photos) == len(scene.split("train")) + run.config.path_views
+  n_train = len(scene.split("train"))
+  assert len(photos) == n_train + run.config.path_views
   assert views["weights"].shape[0] == len(photos)
+  for points, weights in zip(views["points"][n_train:], views["weights"][n_train:]):
+    points = points[weights > 0]  # what a path camera's render keeps
+    assert np.all(index.reshape(-1)[corners(points, index.shape[0], box, np)[0]] < count)
   seen = seen_vertices(views, index, count, box)
   assert seen.sum() >= seen_vertices(cache, index, count, box).sum()  # path views count
   unseen = np.nonzero(~seen[:-1])[0]

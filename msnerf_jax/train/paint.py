@@ -274,8 +274,10 @@ def grid_and_vertices(run_dir: str, cache, config: PaintConfig, width: int, limi
 
 def record_grid(run_dir: str, config: PaintConfig) -> None:
   """run.json's config with the fitted grid (the primary process writes it)."""
+  if not distributed.is_primary():
+    return
   record = runs_lib.read_run_file(run_dir)
-  if distributed.is_primary() and record["config"] != config_lib.to_dict(config):
+  if record["config"] != config_lib.to_dict(config):
     record["config"] = config_lib.to_dict(config)
     write_json(os.path.join(run_dir, runs_lib.RUN_FILE), record)
 

@@ -33,15 +33,6 @@ def camera_samples(scene, nerf_run, cameras: Iterable, top_k: int, threshold: fl
                                     nerf_run.config, top_k, threshold)
 
 
-def path_points(scene, nerf_run, top_k: int, threshold: float, views: int
-                ) -> Iterator[np.ndarray]:
-  """The points [P, 3] of each of `views` cameras spread along the scene's render path that
-  carry weight above `threshold` in its render by the frozen NeRF (camera_samples, as the
-  training views' cache keeps them)."""
-  for samples in camera_samples(scene, nerf_run, scene.path_poses(views), top_k, threshold):
-    yield samples["points"]
-
-
 def path_views(scene, nerf_run, top_k: int, threshold: float, views: int
                ) -> Tuple[List[Dict[str, np.ndarray]], np.ndarray]:
   """`views` cameras spread along the scene's render path as painting views: (their sample

@@ -45,11 +45,10 @@ def pixel_footprint(cache: Dict[str, np.ndarray], width: int, every: int = 4) ->
   opaque (accumulation above 0.5), over every `every`-th cached view (packed lists, sorted
   by pixel; n = H * W pixels a view of `width`). In scene units (NDC on LLFF scenes), so it
   holds for any camera model."""
-  gaps = []
+  gaps, n = [], cache["accumulation"].shape[1]
   for view in range(0, len(cache["weights"]), every):
     weights, pixel = cache["weights"][view], cache["pixel"][view]
-    n = cache["accumulation"].shape[1]
-    total = np.bincount(pixel, weights, n)
+    total = cache["accumulation"][view]  # each pixel's summed weight
     mean = np.stack([np.bincount(pixel, weights * cache["points"][view][:, i], n)
                      for i in range(3)], -1) / np.maximum(total, 1e-12)[:, None]
     opaque = total > 0.5
