@@ -81,8 +81,9 @@ def test_the_cached_render_equals_the_full_render(paint_world, sampler):
   full = render_lib.render_feature_image(NerfField(source.config), field,
                                          {"nerf": source.params, "features": params}, rays,
                                          source.config, 4)
+  top_k = 4 if sampler == "mlp" else 4096  # the grid sampler's cache: no cap here
   cache = sample_cache.view_samples(NerfField(source.config), source.params, rays,
-                                    source.config, top_k=4, threshold=0.0)
+                                    source.config, top_k=top_k, threshold=0.0)
   cached = sample_cache.cached_render(lambda p: field.colours(params, p),
                                       jax.tree_util.tree_map(jnp.asarray, cache))
   want = full["features"].reshape(-1, 2, 3).transpose(1, 0, 2)
@@ -93,6 +94,30 @@ def test_the_cached_render_equals_the_full_render(paint_world, sampler):
   kept = sample_cache.view_samples(NerfField(source.config), source.params, rays,
                                    source.config, top_k=4, threshold=middle)
   assert kept["weights"].size < cache["weights"].size and np.all(kept["weights"] > middle)
+
+
+def test_a_capped_cache_keeps_each_pixels_heaviest_samples_and_its_opacity(paint_world):
+  scene, source = paint_world["scene"], msnerf_jax.load_run(paint_world["nerfs"]["fast"])
+  rays = scene.camera_rays(1)
+  view = lambda k: sample_cache.view_samples(NerfField(source.config), source.params, rays,
+                                             source.config, top_k=k, threshold=0.0)
+  whole, capped = view(4096), view(2)
+  counts = np.bincount(whole["pixel"])
+  assert counts.max() > 2  # the cap binds on some pixels
+  assert np.bincount(capped["pixel"]).max() <= 2 and capped["weights"].size < whole["weights"].size
+  np.testing.assert_allclose(capped["accumulation"], whole["accumulation"], rtol=1e-5, atol=1e-7)
+  assert np.all(np.diff(capped["pixel"]) >= 0)  # still pixel-major
+  for pixel in np.flatnonzero(counts > 2)[:20]:
+    mine, all_ = capped["pixel"] == pixel, whole["pixel"] == pixel
+    heaviest = np.sort(whole["weights"][all_])[-2:]
+    kept = np.sort(capped["weights"][mine])
+    # the pixel's two heaviest samples, scaled to carry the whole pixel's weight
+    np.testing.assert_allclose(kept, heaviest * whole["weights"][all_].sum() / heaviest.sum(),
+                               rtol=1e-5)
+    assert {tuple(p) for p in capped["points"][mine]} <= {tuple(p) for p in whole["points"][all_]}
+  small = {"points": whole["points"][:5], "weights": whole["weights"][:5],
+           "pixel": np.arange(5, dtype=np.int32)}
+  assert sample_cache.cap_samples(small, 1, 5) is small  # nothing to cap: as it was
 
 
 def test_packed_views_render_under_vmap_as_one_by_one(paint_world):
@@ -577,7 +602,7 @@ def test_the_viewer_shows_painted_styles_and_their_blends(paint_world):
     viewer.stop()
 
 
-def test_a_crop_renders_from_its_rows_samples_as_the_whole_view_cropped(paint_world):
+def test_a_crop_renders_from_its_pixels_samples_as_the_whole_view_cropped(paint_world):
   run = msnerf_jax.load_run(paint_world["run"])
   scene = paint_world["scene"]
   config = dataclasses.replace(run.config, crop=16)
@@ -599,4 +624,6 @@ def test_a_crop_renders_from_its_rows_samples_as_the_whole_view_cropped(paint_wo
   for i in range(3):
     top, left = int(batch["top"][i]), int(batch["left"][i])
     np.testing.assert_allclose(crops[i], whole[i, top:top + 16, left:left + 16], atol=1e-6)
-  assert band < cache["weights"].shape[1]  # a band is less than a whole view's samples
+  # a band holds part of one row's samples, not the crop's rows'
+  row_samples = int(np.max(np.diff(np.asarray(consts["pixel_start"])[:, ::24], axis=1)))
+  assert band <= max(64, -(-row_samples // 64) * 64) and 16 * row_samples > band

@@ -32,7 +32,9 @@ def view_samples(field, nerf_params, rays: Dict[str, jnp.ndarray], config, top_k
   """The cache of one view: the samples of the frozen NeRF (`field`, `nerf_params`) along
   `rays` [H, W] (any leading shape) whose weight is above `threshold` (0 keeps all), as
   render.render_feature_image places them (the sampler's weighted_samples: the top_k
-  heaviest a ray, or every sample the grid sampler marches), `chunk` rays per jitted call.
+  heaviest a ray, or every sample the grid sampler marches), at most the `top_k` heaviest
+  of each ray (cap_samples: on the grid sampler a ray's kept samples then carry the weight
+  of those left out), `chunk` rays per jitted call.
 
   Returns: {"points" [P, 3], "weights" [P], "pixel" [P] int32, "accumulation" [n]} for the
   n rays, pixel-major.
@@ -53,11 +55,35 @@ def view_samples(field, nerf_params, rays: Dict[str, jnp.ndarray], config, top_k
     out = jax.tree_util.tree_map(np.asarray, _samples_chunk(field, nerf_params, piece, config,
                                                             top_k, budget))
     keep = (out["ray"] < size) & (out["weights"] > threshold)
-    parts.append({"points": out["points"][keep], "weights": out["weights"][keep],
-                  "pixel": (out["ray"][keep] + start).astype(np.int32)})
+    part = cap_samples({"points": out["points"][keep], "weights": out["weights"][keep],
+                        "pixel": out["ray"][keep].astype(np.int32)}, top_k, size)
+    part["pixel"] += start
+    parts.append(part)
   cache = {k: np.concatenate([p[k] for p in parts]) for k in CACHE_KEYS}
   cache["accumulation"] = np.bincount(cache["pixel"], cache["weights"], n).astype(np.float32)
   return cache
+
+
+def cap_samples(lists: Dict[str, np.ndarray], top_k: int, n: int) -> Dict[str, np.ndarray]:
+  """Sample lists ({"points" [P, 3], "weights" [P], "pixel" [P]} of n pixels) with at most
+  the `top_k` heaviest samples of each pixel, in their order, each pixel's kept weights
+  scaled to the sum of all of its weights (so a render from them keeps every pixel's
+  opacity, and its colour is the weighted mean of its heaviest samples'). Lists that hold
+  no more than top_k a pixel are returned as they are.
+  """
+  pixel, weights = lists["pixel"], lists["weights"]
+  if pixel.size == 0 or np.bincount(pixel, minlength=n).max() <= top_k:
+    return lists
+  order = np.lexsort((-weights, pixel))  # pixel-major, heaviest first
+  first = np.searchsorted(pixel[order], pixel[order], "left")
+  rank = np.empty_like(order)
+  rank[order] = np.arange(order.size) - first
+  keep = rank < top_k
+  whole = np.bincount(pixel, weights, n)
+  kept = np.bincount(pixel[keep], weights[keep], n)
+  scale = (whole / np.maximum(kept, 1e-30)).astype(np.float32)
+  return {"points": lists["points"][keep], "weights": weights[keep] * scale[pixel[keep]],
+          "pixel": pixel[keep]}
 
 
 def pack_views(views: List[Dict[str, np.ndarray]], multiple: int = 1024) -> Dict[str, np.ndarray]:

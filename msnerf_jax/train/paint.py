@@ -108,24 +108,29 @@ def photo_targets(consts, views: jnp.ndarray, styles: jnp.ndarray, white_backgro
 def render_crops(paint_params, consts, batch, crop: int, band: int, bound: float
                  ) -> jnp.ndarray:
   """The crops [B, crop, crop, 3] of batch's pairs ("view", "style", "top", "left"), each
-  rendered from the samples of its rows alone: the cached lists are sorted by pixel, so the
-  `crop` rows from "top" are one slice of at most `band` samples (consts["row_start"]
-  [N, H + 1] says where each row's samples start)."""
+  rendered from the samples of its own pixels alone: the cached lists are sorted by pixel,
+  so each of a crop's rows is one run of at most `band` samples, starting where its first
+  pixel's do (consts["pixel_start"] [N, H * W + 1])."""
   cache, width = consts["cache"], consts["photos"].shape[2]
+  size = cache["weights"].shape[1]
+  rows = jnp.arange(crop)
 
   def one(view, style, top, left):
-    start = consts["row_start"][view, top]
-    piece = lambda x: jax.lax.dynamic_slice_in_dim(x, start, band)
-    pixel = piece(cache["pixel"][view]) - top * width
-    inside = (pixel >= 0) & (pixel < crop * width)
-    lists = {"points": piece(cache["points"][view]),
-             "weights": jnp.where(inside, piece(cache["weights"][view]), 0.0),
-             "pixel": jnp.clip(pixel, 0, crop * width - 1),
-             "accumulation": jax.lax.dynamic_slice_in_dim(cache["accumulation"][view],
-                                                          top * width, crop * width)}
-    rows = sample_cache.cached_render(style_colour(paint_params, style, bound), lists,
-                                      consts["background"])
-    return jax.lax.dynamic_slice(rows.reshape(crop, width, 3), (0, left, 0), (crop, crop, 3))
+    first = (top + rows) * width + left  # [crop] the rows' first pixels
+    at = consts["pixel_start"][view, first][:, None] + jnp.arange(band)  # [crop, band]
+    inside = at < size
+    at = jnp.minimum(at, size - 1)
+    column = cache["pixel"][view][at] - first[:, None]
+    inside &= (column >= 0) & (column < crop)
+    pixels = (rows[:, None] * crop + column).reshape(-1)
+    lists = {"points": cache["points"][view][at].reshape(-1, 3),
+             "weights": jnp.where(inside, cache["weights"][view][at], 0.0).reshape(-1),
+             "pixel": jnp.where(inside.reshape(-1), pixels, 0),
+             "accumulation": cache["accumulation"][view][
+                 (first[:, None] + rows).reshape(-1)]}
+    image = sample_cache.cached_render(style_colour(paint_params, style, bound), lists,
+                                       consts["background"])
+    return image.reshape(crop, crop, 3)
   return jax.vmap(one)(batch["view"], batch["style"], batch["top"], batch["left"])
 
 

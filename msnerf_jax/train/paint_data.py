@@ -207,14 +207,14 @@ def constants(scene, cache, photos: np.ndarray, styles: np.ndarray, config: Pain
   painting's views and the style images: "cache" (the packed sample lists of the N views,
   painting_views'), "photos" [N, H, W, 3] (theirs), "maps" (style_maps),
   "targets" (painting_loss.StyleTarget stacked [M, ...]), "encoder" (VGG params),
-  "background" [3] and "fill" [V + 1] (fill_map); with config.crop also "row_start" and
-  "band" (row_starts; the band is taken out by compile_train_step, a static size)."""
+  "background" [3] and "fill" [V + 1] (fill_map); with config.crop also "pixel_start" and
+  "band" (pixel_starts; the band is taken out by compile_train_step, a static size)."""
   encoder = vgg.load_vgg_params()
   targets = [painting_loss.style_target(encoder, jnp.asarray(s)) for s in styles]
   crops = {}
   if config.crop:
-    row_start, band = row_starts(cache, scene.height, scene.width, config.crop)
-    crops = {"row_start": jnp.asarray(row_start), "band": band}
+    pixel_start, band = pixel_starts(cache, scene.height, scene.width, config.crop)
+    crops = {"pixel_start": jnp.asarray(pixel_start), "band": band}
   return dict(
       **crops,
       cache={k: jnp.asarray(v) for k, v in cache.items()}, photos=jnp.asarray(photos),
@@ -222,14 +222,17 @@ def constants(scene, cache, photos: np.ndarray, styles: np.ndarray, config: Pain
       background=jnp.full((3,), 1.0 if scene.white_background else 0.0, jnp.float32))
 
 
-def row_starts(cache, height: int, width: int, crop: int):
-  """(row_start [N, H + 1] int32: where each row's samples start in each view's list, band:
-  the most samples `crop` consecutive rows of a view hold, rounded up to 1024) of packed
-  sample lists (sorted by pixel; the padding after the last sample of weight > 0)."""
+def pixel_starts(cache, height: int, width: int, crop: int):
+  """(pixel_start [N, H * W + 1] int32: where each pixel's samples start in each view's list,
+  band: the most samples `crop` neighbouring pixels of one row hold in any view, rounded up
+  to 64) of packed sample lists (sorted by pixel; the padding after the last sample of
+  weight > 0)."""
   starts = []
   for pixel, weights in zip(cache["pixel"], cache["weights"]):
     count = int(np.max(np.nonzero(weights > 0)[0], initial=-1)) + 1
-    starts.append(np.searchsorted(pixel[:count], np.arange(height + 1) * width))
+    starts.append(np.searchsorted(pixel[:count], np.arange(height * width + 1)))
   starts = np.asarray(starts, np.int32)
-  band = int(np.max(starts[:, crop:] - starts[:, :-crop]))
-  return starts, max(1024, -(-band // 1024) * 1024)
+  first = starts[:, :-1].reshape(-1, height, width)  # each pixel's first sample
+  after = starts[:, 1:].reshape(-1, height, width)  # and the one after its last
+  band = int(np.max(after[:, :, crop - 1:] - first[:, :, :width - crop + 1]))
+  return starts, max(64, -(-band // 64) * 64)

@@ -48,7 +48,9 @@ class PaintConfig:
                          "VGG at every step, e.g. LLFF's 504x378)")
   cache_threshold: float = setting(1e-3, "samples whose weight is at most this are left out "
                                          "of the cached sample lists")
-  top_k: int = setting(16, "hierarchical NeRFs: the heaviest fine samples of each ray kept")
+  top_k: int = setting(16, "the heaviest samples of each ray kept in the cached lists "
+                           "(hierarchical NeRFs render with them too; with the grid sampler "
+                           "they carry the weight of the ones left out)")
   optim: OptimConfig = optimisation(steps=1000, lr_init=0.05, lr_final=0.005,
                                     lr_decay_steps=1000, checkpoint_every=250,
                                     keep_checkpoints=2)
