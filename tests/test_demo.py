@@ -101,7 +101,20 @@ def test_pipeline_bad_input_is_one_line_error(tmp_path, capsys):
   assert cli.main(["pipeline", "--data", scene, "--styles", str(tmp_path / "missing.png"),
                    "--out", str(tmp_path / "o")]) == 2
   assert "missing.png: no such style image" in capsys.readouterr().err
+  for option, value, problem in (("--paint-crop", "16", "must be 0 (whole views) or at least 32"),
+                                 ("--paint-path-views", "-1", "must be >= 0")):
+    assert cli.main(["pipeline", "--data", scene, "--styles", style, "--out",
+                     str(tmp_path / "o"), option, value]) == 2
+    assert f"{option} {value}: {problem}" in capsys.readouterr().err
   assert not os.path.exists(tmp_path / "o")
+
+
+def test_pipeline_paint_options_reach_the_painted_runs_config():
+  from msnerf_jax.pipeline import settings  # pylint: disable=g-import-not-at-top
+  base = settings.paint_config(settings.Settings())
+  assert (base.crop, base.path_views) == (0, 24)  # paint train's defaults: earlier records hold
+  fern = settings.paint_config(settings.Settings(paint_crop=128, paint_path_views=0))
+  assert (fern.crop, fern.path_views) == (128, 0)
 
 
 @pytest.mark.parametrize("verb", ["pipeline", "demo"])

@@ -24,6 +24,11 @@ _HELP = {
     "features_steps": "feature-field training steps (0 = no feature field)",
     "features_batch_cells": "feature-field relu4_1 cells per step",
     "paint_steps": "painted colour fields: training steps (0 = none)",
+    "paint_crop": "painted colour fields: the style loss sees random crops of this side "
+                  "(0 = whole views; 128 for views as large as LLFF's 504x378)",
+    "paint_path_views": "painted colour fields: render-path cameras painted beside the "
+                        "training views (0 = none, e.g. fern: its hazy NeRF's sample lists "
+                        "are large)",
     "frames": "frames of the videos (0 = the scene's whole render path)",
     "fps": "frames per second of the videos",
     "grid_views": "views (columns) of the grid",

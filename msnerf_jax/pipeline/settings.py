@@ -31,6 +31,8 @@ class Settings:
   features_steps: int = 2000  # 0 = no feature field.
   features_batch_cells: int = 512
   paint_steps: int = 1000  # 0 = no painted run (`msnerf paint train`'s default length).
+  paint_crop: int = 0  # the style loss's crops (0 = whole views; PaintConfig.crop).
+  paint_path_views: int = 24  # render-path cameras painted too (PaintConfig).
   frames: int = 0  # frames of the videos (0 = the scene's whole render path).
   fps: int = 12
   grid_views: int = 4
@@ -69,7 +71,8 @@ def paint_config(s: Settings) -> config_lib.PaintConfig:
   return config_lib.override(config_lib.PaintConfig(), steps=s.paint_steps,
                              init_steps=min(100, s.paint_steps // 10),
                              lr_decay_steps=max(1, s.paint_steps), seed=s.seed,
-                             checkpoint_every=max(1, min(250, s.paint_steps)))
+                             checkpoint_every=max(1, min(250, s.paint_steps)),
+                             crop=s.paint_crop, path_views=s.paint_path_views)
 
 
 def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[str],
@@ -93,8 +96,10 @@ def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[s
     if getattr(s, name) < 1:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 1")
   for name in ("nerf_steps", "nerf_batch_rays", "frames", "chunk", "downscale",
-               "features_steps", "paint_steps"):
+               "features_steps", "paint_steps", "paint_path_views"):
     if getattr(s, name) < 0:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 0")
+  if s.paint_crop and s.paint_crop < 32:
+    raise UserError(f"--paint-crop {s.paint_crop}: must be 0 (whole views) or at least 32")
   if s.adain_size < 16 or s.adain_size % 8:
     raise UserError(f"--adain-size {s.adain_size}: must be a multiple of 8, at least 16")
