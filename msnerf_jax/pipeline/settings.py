@@ -99,7 +99,8 @@ def check_inputs(data: str, styles: Sequence[str], out: str, decoder: Optional[s
                "features_steps", "paint_steps", "paint_path_views"):
     if getattr(s, name) < 0:
       raise UserError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be >= 0")
-  if s.paint_crop and s.paint_crop < 32:
-    raise UserError(f"--paint-crop {s.paint_crop}: must be 0 (whole views) or at least 32")
+  if s.paint_crop and s.paint_crop < config_lib.MIN_CROP:
+    raise UserError(f"--paint-crop {s.paint_crop}: must be 0 (whole views) or at least "
+                    f"{config_lib.MIN_CROP}")
   if s.adain_size < 16 or s.adain_size % 8:
     raise UserError(f"--adain-size {s.adain_size}: must be a multiple of 8, at least 16")

@@ -9,7 +9,7 @@ from msnerf_jax.core.config.base import (NAMED_FIRST, bad_setting, check_at_leas
 from msnerf_jax.core.config.optim import OptimConfig, optimisation
 from msnerf_jax.core.config.nerf import (DEFAULT_PRESET, PRESETS, SAMPLERS, TRUNKS, DataConfig,
                                          NerfConfig, nerf_preset)
-from msnerf_jax.core.config.paint import PAINT_LOSSES, PaintConfig
+from msnerf_jax.core.config.paint import MIN_CROP, PAINT_LOSSES, PaintConfig
 from msnerf_jax.core.config.style import (DECODE_TARGETS, FEATURE_LOSSES, SHIFT_MIN_SIZE,
                                           SHIFT_SOURCES, UPSAMPLE_MODES, AdainConfig,
                                           FeatureConfig, MultistyleConfig)
@@ -20,4 +20,4 @@ __all__ = ["NAMED_FIRST", "bad_setting", "check_at_least", "check_hash_settings"
            "DEFAULT_PRESET", "PRESETS",
            "SAMPLERS", "TRUNKS", "DataConfig", "NerfConfig", "nerf_preset", "DECODE_TARGETS",
            "FEATURE_LOSSES", "SHIFT_MIN_SIZE", "SHIFT_SOURCES", "UPSAMPLE_MODES", "AdainConfig",
-           "FeatureConfig", "MultistyleConfig", "PAINT_LOSSES", "PaintConfig"]
+           "FeatureConfig", "MultistyleConfig", "MIN_CROP", "PAINT_LOSSES", "PaintConfig"]

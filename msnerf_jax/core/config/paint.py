@@ -9,6 +9,7 @@ from msnerf_jax.core.config.nerf import NerfConfig
 from msnerf_jax.core.config.optim import OptimConfig, optimisation
 
 PAINT_LOSSES = ("nnfm", "adain")  # PaintConfig.style_loss.
+MIN_CROP = 32  # PaintConfig.crop: VGG's relu3 needs 8x8.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,8 +69,9 @@ class PaintConfig:
     check_at_least(self, ("style_size",), 16)
     check_at_least(self, ("init_steps", "path_views"), 0)
     check_at_least(self, ("views_per_style", "top_k"))
-    if self.crop and self.crop < 32:
-      bad_setting(self, "crop", "must be 0 (whole views) or at least 32 (VGG's relu3 needs 8x8)")
+    if self.crop and self.crop < MIN_CROP:
+      bad_setting(self, "crop", f"must be 0 (whole views) or at least {MIN_CROP} (VGG's relu3 "
+                                "needs 8x8)")
     if not 0.0 <= self.cache_threshold < 1.0:
       bad_setting(self, "cache_threshold", "must be in [0, 1)")
     self.optim.validate("lr")
