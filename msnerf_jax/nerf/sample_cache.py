@@ -75,7 +75,8 @@ def cap_samples(lists: Dict[str, np.ndarray], top_k: int, n: int) -> Dict[str, n
   if pixel.size == 0 or np.bincount(pixel, minlength=n).max() <= top_k:
     return lists
   order = np.lexsort((-weights, pixel))  # pixel-major, heaviest first
-  first = np.searchsorted(pixel[order], pixel[order], "left")
+  ordered = pixel[order]
+  first = np.searchsorted(ordered, ordered, "left")  # where each one's pixel starts
   rank = np.empty_like(order)
   rank[order] = np.arange(order.size) - first
   keep = rank < top_k
