@@ -152,3 +152,21 @@ def test_read_image_modes(tmp_path):
   big.save(tmp_path / "big.jpg")
   out = images_lib.read_image(str(tmp_path / "big.jpg"), max_side=500)
   assert max(out.shape[:2]) == 500
+
+
+def test_an_mp4_is_written_without_jaxs_fork_warning(tmp_path):
+  # ffmpeg runs as a subprocess; JAX (its threads started here) warns at every os.fork(),
+  # and the pipeline's renders printed that warning once per video.
+  import warnings  # pylint: disable=g-import-not-at-top
+  import imageio.v2 as imageio  # pylint: disable=g-import-not-at-top
+  import jax.numpy as jnp  # pylint: disable=g-import-not-at-top
+  from msnerf_jax.data import video  # pylint: disable=g-import-not-at-top
+  jnp.ones(3).block_until_ready()
+  frames = [np.full((16, 16, 3), 40 * k, np.uint8) for k in range(4)]
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    video.write_video(str(tmp_path / "v.mp4"), frames, fps=4)
+  assert not [w for w in caught if "fork" in str(w.message)]
+  reader = imageio.get_reader(str(tmp_path / "v.mp4"))
+  assert len([f for f in reader]) == 4
+  reader.close()

@@ -1,8 +1,10 @@
 """Writing what people look at: MP4/GIF videos, image grids, depth maps (atomic writes)."""
 
+import contextlib
 import errno
 import os
 import resource
+import warnings
 from typing import List, Optional, Sequence
 
 import imageio.v2 as imageio
@@ -44,7 +46,7 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[
     return [path]
   # Even sizes for yuv420p; macro_block_size=1 keeps odd sizes from being resized.
   frames = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]
-  with files.atomic_path(path) as tmp:
+  with files.atomic_path(path) as tmp, _ffmpeg_forks():
     with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8,
                             macro_block_size=1, pixelformat="yuv420p",
                             ffmpeg_log_level="quiet") as writer:
@@ -52,6 +54,15 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: int = 24) -> List[
         writer.append_data(f)
     _check_complete(tmp, len(frames), path)
   return [path]
+
+
+@contextlib.contextmanager
+def _ffmpeg_forks():
+  """A context in which JAX's warning that os.fork() was called is not shown: imageio starts
+  ffmpeg with subprocess, whose child runs nothing of this process before it execs."""
+  with warnings.catch_warnings():
+    warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
+    yield
 
 
 def _check_complete(tmp: str, n_frames: int, path: str) -> None:

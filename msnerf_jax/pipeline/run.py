@@ -27,6 +27,8 @@ pipeline re-run with the same command picks up where it stopped.
 import dataclasses
 import json
 import os
+import resource
+import sys
 import time
 from typing import Any, Callable, Dict, Optional, Sequence
 
@@ -96,12 +98,18 @@ def _run_stage(c: Context, k: int, stage, record: Dict[str, Any], given_decoder)
   c.log(f"{tag}: running ...")
   t0 = time.time()
   outputs = stage.run(c)
-  seconds = time.time() - t0
-  c.log(f"{tag}: done in {seconds:.1f} s")
+  seconds, peak = time.time() - t0, peak_memory_gib()
+  c.log(f"{tag}: done in {seconds:.1f} s (peak memory so far {peak:.2f} GiB)")
   record["stages"][stage.name] = {"key": key, "seconds": round(seconds, 1), "outputs": outputs}
   _save_record(c.out, record)
   return {"stage": stage.name, "status": "ran", "seconds": round(seconds, 1),
-          "outputs": outputs}
+          "peak_memory_gib": round(peak, 2), "outputs": outputs}
+
+
+def peak_memory_gib() -> float:
+  """This process's peak resident memory so far, in GiB."""
+  peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # bytes on macOS, KiB on Linux
+  return peak / 2**30 if sys.platform == "darwin" else peak / 2**20
 
 
 def format_summary(summary: Dict[str, Any]) -> str:
@@ -110,6 +118,8 @@ def format_summary(summary: Dict[str, Any]) -> str:
   for r in summary["stages"]:
     if r["status"] == "ran":
       what = f"ran in {r['seconds']:.1f} s"
+      if "peak_memory_gib" in r:
+        what += f", peak memory so far {r['peak_memory_gib']:.2f} GiB"
     elif r["status"] == "skipped":
       what = f"skipped (done before, took {r.get('trained_seconds', 0.0):.1f} s)"
     else:
