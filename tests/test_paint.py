@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import types
 
 import jax
 import jax.numpy as jnp
@@ -16,6 +17,7 @@ from PIL import Image
 import msnerf_jax
 from msnerf_jax import cli
 from msnerf_jax.core.config import DataConfig, PaintConfig, override
+from msnerf_jax.core.config.paint import MIN_CROP
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.kinds import painted as painted_kind
 from msnerf_jax.kinds.renderers import style_rendering
@@ -460,18 +462,25 @@ def test_the_grid_is_fitted_to_the_samples_weight_and_the_pixels_size():
 def test_a_fitted_grid_is_recorded_and_kept_when_the_run_resumes(paint_world, tmp_path, capsys):
   out = str(tmp_path / "fitted")
   args = ["paint", "train", "--nerf", paint_world["nerfs"]["fast"], "--styles",
-          paint_world["styles"][0], "--out", out, "--init-steps", "1", "--style-size", "32"]
+          paint_world["styles"][0], "--out", out, "--init-steps", "1"]
   assert cli.main(args + ["--steps", "1"]) == 0
   run = msnerf_jax.load_run(out)
   nerf_box = msnerf_jax.load_run(paint_world["nerfs"]["fast"]).config.scene_box
   assert 0 < run.config.scene_box <= nerf_box
   assert paint_grid.MIN_RESOLUTION <= run.config.resolution <= paint_grid.MAX_RESOLUTION
   assert np.shape(run.params["paint"]["index"]) == (run.config.resolution,) * 3
+  scene = paint_world["scene"]  # the style images at the views' longer side (MIN_CROP at least)
+  assert run.config.style_size == max(scene.height, scene.width, MIN_CROP)
+  assert paint_data.style_size(PaintConfig(), scene) == run.config.style_size
+  big = types.SimpleNamespace(height=378, width=504)  # fern at factor 8
+  assert paint_data.style_size(PaintConfig(), big) == paint_data.MAX_STYLE_SIZE
+  assert paint_data.style_size(override(PaintConfig(), style_size=300), big) == 300
+  assert painted_kind.style_images(run).shape == (1, run.config.style_size, run.config.style_size, 3)
   assert cli.main(args + ["--steps", "2"]) == 0  # the same options resume it
   again = msnerf_jax.load_run(out)
   assert again.step == 2
-  assert (again.config.scene_box, again.config.resolution) == (run.config.scene_box,
-                                                               run.config.resolution)
+  assert (again.config.scene_box, again.config.resolution, again.config.style_size) == (
+      run.config.scene_box, run.config.resolution, run.config.style_size)
   capsys.readouterr()
   assert cli.main(args + ["--steps", "3", "--resolution", "12"]) == 2  # another grid: refused
   assert "another config" in capsys.readouterr().err

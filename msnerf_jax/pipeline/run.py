@@ -27,12 +27,11 @@ pipeline re-run with the same command picks up where it stopped.
 import dataclasses
 import json
 import os
-import resource
-import sys
 import time
 from typing import Any, Callable, Dict, Optional, Sequence
 
 from msnerf_jax.core import files
+from msnerf_jax.core import memory
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.data import images as images_lib
 from msnerf_jax.data.stylized import ORIGINAL, style_name
@@ -98,18 +97,14 @@ def _run_stage(c: Context, k: int, stage, record: Dict[str, Any], given_decoder)
   c.log(f"{tag}: running ...")
   t0 = time.time()
   outputs = stage.run(c)
-  seconds, peak = time.time() - t0, peak_memory_gib()
-  c.log(f"{tag}: done in {seconds:.1f} s (peak memory so far {peak:.2f} GiB)")
+  seconds, peak = time.time() - t0, memory.peak_gib()
+  memory.release()
+  c.log(f"{tag}: done in {seconds:.1f} s (memory: peak so far {peak:.2f} GiB, "
+        f"{memory.current_gib():.2f} GiB after it)")
   record["stages"][stage.name] = {"key": key, "seconds": round(seconds, 1), "outputs": outputs}
   _save_record(c.out, record)
   return {"stage": stage.name, "status": "ran", "seconds": round(seconds, 1),
           "peak_memory_gib": round(peak, 2), "outputs": outputs}
-
-
-def peak_memory_gib() -> float:
-  """This process's peak resident memory so far, in GiB."""
-  peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # bytes on macOS, KiB on Linux
-  return peak / 2**30 if sys.platform == "darwin" else peak / 2**20
 
 
 def format_summary(summary: Dict[str, Any]) -> str:

@@ -38,7 +38,7 @@ from msnerf_jax.train import paint_grid
 from msnerf_jax.train.paint_data import (CACHE_FILE, cache_source, constants, index_of,
                                          load_or_build_cache, painting_views, read_cache,
                                          read_styles, starting_colours, style_maps,
-                                         style_name)
+                                         style_name, style_size)
 from msnerf_jax.train import multistyle as multistyle_lib
 from msnerf_jax.train import nerf as nerf_lib
 from msnerf_jax.train import state as state_lib
@@ -246,9 +246,10 @@ def check_config(config: PaintConfig, n_styles: int, parallel: DataParallel, sce
 
 
 def saved_grid(run_dir: str, config: PaintConfig) -> PaintConfig:
-  """`config` with its fitted settings (scene_box, resolution 0) taken from the painted run
-  already in `run_dir`, if any: a resumed run keeps the grid it was fitted to, and its
-  run.json (which holds the fitted values) still matches the options it was started with."""
+  """`config` with its fitted settings (scene_box, resolution, style_size 0) taken from the
+  painted run already in `run_dir`, if any: a resumed run keeps the grid it was fitted to
+  and its style size, and its run.json (which holds the fitted values) still matches the
+  options it was started with."""
   try:
     saved = runs_lib.read_run_file(run_dir)
   except (UserError, OSError):
@@ -257,7 +258,8 @@ def saved_grid(run_dir: str, config: PaintConfig) -> PaintConfig:
     return config
   return dataclasses.replace(
       config, scene_box=config.scene_box or float(saved["config"].get("scene_box", 0.0)),
-      resolution=config.resolution or int(saved["config"].get("resolution", 0)))
+      resolution=config.resolution or int(saved["config"].get("resolution", 0)),
+      style_size=config.style_size or int(saved["config"].get("style_size", 0)))
 
 
 def grid_and_vertices(run_dir: str, cache, config: PaintConfig, width: int, limit: float
@@ -294,13 +296,15 @@ def train(config: PaintConfig, nerf_run_dir: str, style_paths: Sequence[str], ru
           ) -> Dict[str, Any]:
   """Paints (or resumes painting) the styles `style_paths` on a NeRF run's frozen geometry
   in `run_dir`. `config.nerf` becomes the NeRF run's config; a scene_box or resolution of 0
-  is fitted to what the painting's views see (paint_grid.fit; run.json holds the values).
+  is fitted to what the painting's views see (paint_grid.fit), a style_size of 0 to the
+  views (`style_size`); run.json holds the values.
   Devices and processes as nerf.train's. Returns the loop's summary dict."""
-  styles = read_styles(style_paths, config.style_size)
   names = [style_name(p) for p in style_paths]
   nerf_run, scene, data = multistyle_lib.load_nerf_run(nerf_run_dir)
   limit = nerf_run.config.scene_box or nerf_lib.scene_box(scene)
   config = saved_grid(run_dir, dataclasses.replace(config, nerf=nerf_run.config))
+  config = dataclasses.replace(config, style_size=style_size(config, scene))
+  styles = read_styles(style_paths, config.style_size)
   devices = data_parallel(n_devices, parallel)
   check_config(config, len(names), devices, scene)
   record = {"config": config_lib.to_dict(config), "data": config_lib.to_dict(data),

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from msnerf_jax.core.config import PaintConfig
+from msnerf_jax.core.config.paint import MIN_CROP
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.progress import progress_bar
@@ -28,6 +29,18 @@ CACHE_FILE = "sample_cache.npz"
 
 def style_name(path: str) -> str:
   return os.path.splitext(os.path.basename(path.rstrip("/")))[0]
+
+
+MAX_STYLE_SIZE = 256  # the fitted style size's cap: the NNFM matrix grows with its square.
+
+
+def style_size(config: PaintConfig, scene) -> int:
+  """The side of the square the style images are cover-cropped to: config.style_size, or
+  for 0 the scene's longer side (MIN_CROP to MAX_STYLE_SIZE), so that the style loss sees
+  the painting's strokes at about the scale per-frame AdaIN paints them on a view (it
+  cover-crops the style to the view). Measured on the cup capture (100x75, 300 steps):
+  style distance 0.98-1.64x per-frame AdaIN's at 100 against 1.56-1.80x at 256."""
+  return config.style_size or min(max(scene.height, scene.width, MIN_CROP), MAX_STYLE_SIZE)
 
 
 def read_styles(paths: Sequence[str], size: int) -> np.ndarray:

@@ -37,7 +37,9 @@ class PaintConfig:
   colour_transfer: bool = setting(True, "move the photos' colours to each style's mean and "
                                         "covariance first (the init fit's and the content "
                                         "term's target)")
-  style_size: int = setting(256, "style images are cover-cropped to this square first")
+  style_size: int = setting(0, "style images are cover-cropped to this square first (0 = "
+                               "the views' longer side, 32 to 256: the painting's strokes "
+                               "at the scale per-frame AdaIN paints them on a view)")
   init_steps: int = setting(100, "first steps (of --steps): MSE to the colour-transferred "
                                  "photos")
   path_views: int = setting(24, "cameras along the scene's render path painted too (the "
@@ -66,7 +68,8 @@ class PaintConfig:
     if self.style_loss not in PAINT_LOSSES:
       bad_setting(self, "style_loss", f"choose from {', '.join(PAINT_LOSSES)}")
     check_non_negative(self, ("style_weight", "content_weight", "tv_weight"))
-    check_at_least(self, ("style_size",), 16)
+    if self.style_size != 0 and self.style_size < 16:
+      bad_setting(self, "style_size", "must be 0 (the views' longer side) or at least 16")
     check_at_least(self, ("init_steps", "path_views"), 0)
     check_at_least(self, ("views_per_style", "top_k"))
     if self.crop and self.crop < MIN_CROP:
