@@ -24,10 +24,14 @@ def current_gib() -> float:
     return peak_gib()
 
 
-def release() -> None:
+def release(compiled: bool = False) -> None:
   """Frees what nothing refers to any more and, with glibc, returns the free parts of the
   heap to the system (malloc_trim): a stage's buffers would otherwise stay resident under
-  the next stage's."""
+  the next stage's. With `compiled`, JAX's compiled programs go too (jax.clear_caches;
+  what runs next compiles what it needs again)."""
+  if compiled:
+    import jax  # pylint: disable=g-import-not-at-top
+    jax.clear_caches()
   gc.collect()
   name = ctypes.util.find_library("c")
   if not name or not sys.platform.startswith("linux"):

@@ -98,7 +98,7 @@ def _run_stage(c: Context, k: int, stage, record: Dict[str, Any], given_decoder)
   t0 = time.time()
   outputs = stage.run(c)
   seconds, peak = time.time() - t0, memory.peak_gib()
-  memory.release()
+  memory.release(compiled=not stage.keep_compiled)
   c.log(f"{tag}: done in {seconds:.1f} s (memory: peak so far {peak:.2f} GiB, "
         f"{memory.current_gib():.2f} GiB after it)")
   record["stages"][stage.name] = {"key": key, "seconds": round(seconds, 1), "outputs": outputs}

@@ -60,13 +60,16 @@ class Context:
 class Stage:
   """A stage: `key` (what its output depends on, saved in pipeline.json), `done` (its output
   is complete), `run` (runs or resumes it; returns its outputs), `outputs` (when skipped),
-  `skip` ((status, message) when it does not run at all, else None)."""
+  `skip` ((status, message) when it does not run at all, else None). After a stage runs,
+  JAX's compiled programs are dropped (they hold memory the next stage needs) unless
+  `keep_compiled`: the next stage renders with them."""
   name: str
   key: Callable[[Context], Dict[str, Any]]
   done: Callable[[Context], bool]
   run: Callable[[Context], List[str]]
   outputs: Callable[[Context], List[str]]
   skip: Callable[[Context], Optional[Tuple[str, str]]] = lambda c: None
+  keep_compiled: bool = False
 
 
 def _base(c: Context) -> Dict[str, Any]:
@@ -262,7 +265,7 @@ STAGES: Sequence[Stage] = (
     Stage("features", _features_key, _features_done, _run_features, _folder("features"),
           _features_off),
     Stage("painted", _painted_key, _trained("painted", lambda c: c.settings.paint_steps),
-          _run_painted, _folder("painted"), _painted_off),
+          _run_painted, _folder("painted"), _painted_off, keep_compiled=True),
     Stage("renders", _renders_key, lambda c: all(map(os.path.exists, _render_outputs(c))),
           lambda c: renders.run_renders(c.out, c.styles, c.decoder_dir, c.settings, c.progress),
           _render_outputs),
