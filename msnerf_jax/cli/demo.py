@@ -12,7 +12,7 @@ DEMO_VIEWS = 40
 
 def demo_settings():
   from msnerf_jax.pipeline.settings import Settings  # pylint: disable=g-import-not-at-top
-  # About 11.5 minutes on an idle 2-core CPU (README). The decoder gets the largest share: with
+  # About 12 minutes and 1.6 GiB on an idle 2-core CPU (docs/getting-started.md). The decoder gets the largest share: with
   # fewer steps its outputs are the style's texture alone, and the stylized views (and so every
   # render) lose the scene.
   # The multi-style heads' batch loss is flat from step 300 on at this size (PSNR 18.4 at
