@@ -12,9 +12,9 @@ DEMO_VIEWS = 40
 
 def demo_settings():
   from msnerf_jax.pipeline.settings import Settings  # pylint: disable=g-import-not-at-top
-  # About 12 minutes and 1.6 GiB on an idle 2-core CPU (docs/getting-started.md). The decoder gets the largest share: with
-  # fewer steps its outputs are the style's texture alone, and the stylized views (and so every
-  # render) lose the scene.
+  # About 12 minutes and 1.6 GiB on an idle 2-core CPU (docs/getting-started.md). The decoder
+  # gets the largest share: with fewer steps its outputs are the style's texture alone, and
+  # the stylized views (and so every render) lose the scene.
   # The multi-style heads' batch loss is flat from step 300 on at this size (PSNR 18.4 at
   # steps 200-300 and 1300-1500 alike, 7 December): 500 steps, and the time goes to painting.
   return dataclasses.replace(Settings(), adain_steps=800, adain_size=64, adain_batch=4,
