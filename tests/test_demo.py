@@ -80,10 +80,11 @@ def test_demo_end_to_end_and_rerun_skips(tmp_path, capsys):
   summary = json.load(open(os.path.join(out, "summary.json")))
   assert {s["stage"]: s["status"] for s in summary["stages"]} == {
       stage: "ran" for stage in STAGES}
-  assert "adain" in open(os.path.join(out, "summary.txt")).read()
+  text = open(os.path.join(out, "summary.txt")).read()
+  assert "adain" in text
   peaks = [s["peak_memory_gib"] for s in summary["stages"]]
   assert peaks == sorted(peaks) and 0.1 < peaks[-1] < 24  # a running peak, in GiB
-  assert f"peak memory so far {peaks[-1]:.2f} GiB" in open(os.path.join(out, "summary.txt")).read()
+  assert f"peak memory so far {peaks[-1]:.2f} GiB" in text
 
   mtimes = {n: os.path.getmtime(os.path.join(renders, n)) for n in OUTPUTS}
   assert cli.main(["demo", "--out", out, *TINY]) == 0

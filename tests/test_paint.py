@@ -16,8 +16,7 @@ from PIL import Image
 
 import msnerf_jax
 from msnerf_jax import cli
-from msnerf_jax.core.config import DataConfig, PaintConfig, override
-from msnerf_jax.core.config.paint import MIN_CROP
+from msnerf_jax.core.config import MIN_CROP, DataConfig, PaintConfig, override
 from msnerf_jax.data.scene import load_scene
 from msnerf_jax.kinds import painted as painted_kind
 from msnerf_jax.kinds.renderers import style_rendering
@@ -475,7 +474,8 @@ def test_a_fitted_grid_is_recorded_and_kept_when_the_run_resumes(paint_world, tm
   big = types.SimpleNamespace(height=378, width=504)  # fern at factor 8
   assert paint_data.style_size(PaintConfig(), big) == paint_data.MAX_STYLE_SIZE
   assert paint_data.style_size(override(PaintConfig(), style_size=300), big) == 300
-  assert painted_kind.style_images(run).shape == (1, run.config.style_size, run.config.style_size, 3)
+  side = run.config.style_size
+  assert painted_kind.style_images(run).shape == (1, side, side, 3)
   assert cli.main(args + ["--steps", "2"]) == 0  # the same options resume it
   again = msnerf_jax.load_run(out)
   assert again.step == 2

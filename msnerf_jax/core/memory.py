@@ -2,7 +2,6 @@
 to the system between the pipeline's stages."""
 
 import ctypes
-import ctypes.util
 import gc
 import os
 import resource
@@ -33,10 +32,7 @@ def release(compiled: bool = False) -> None:
     import jax  # pylint: disable=g-import-not-at-top
     jax.clear_caches()
   gc.collect()
-  name = ctypes.util.find_library("c")
-  if not name or not sys.platform.startswith("linux"):
-    return
   try:
-    ctypes.CDLL(name).malloc_trim(0)
+    ctypes.CDLL(None).malloc_trim(0)  # the C library this process already has loaded
   except (OSError, AttributeError):  # not glibc
     pass

@@ -112,9 +112,7 @@ def format_summary(summary: Dict[str, Any]) -> str:
   lines = [f"pipeline {summary['out']}: {summary['seconds']:.1f} s in all"]
   for r in summary["stages"]:
     if r["status"] == "ran":
-      what = f"ran in {r['seconds']:.1f} s"
-      if "peak_memory_gib" in r:
-        what += f", peak memory so far {r['peak_memory_gib']:.2f} GiB"
+      what = f"ran in {r['seconds']:.1f} s, peak memory so far {r['peak_memory_gib']:.2f} GiB"
     elif r["status"] == "skipped":
       what = f"skipped (done before, took {r.get('trained_seconds', 0.0):.1f} s)"
     else:

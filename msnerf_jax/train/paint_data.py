@@ -10,8 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from msnerf_jax.core.config import PaintConfig
-from msnerf_jax.core.config.paint import MIN_CROP
+from msnerf_jax.core.config import MIN_CROP, PaintConfig
 from msnerf_jax.core.errors import UserError
 from msnerf_jax.core.files import atomic_path
 from msnerf_jax.core.progress import progress_bar
